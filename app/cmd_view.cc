@@ -1,0 +1,44 @@
+#include "app/cmd_view.h"
+
+#include <iostream>
+
+#include "core/io/image_io.h"
+#include "core/util/error.h"
+#include "core/util/options.h"
+
+namespace avatar::app {
+
+void ViewOptions::Validate() const {
+  AVATAR_CHECK_OPTION(!input.empty()) << "missing IMAGE: give the portrait to open";
+  AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
+  preview.Validate();
+  common.Validate();
+}
+
+int RunViewImpl(const ViewOptions& options, RunContext& ctx) {
+  options.Validate();
+  const cv::Mat view = RenderPortraitPreview(options.input, options.preview, ctx);
+  SaveImage(options.output, view);
+  std::cout << "Opened '" << options.input << "' and wrote the viewport image (" << view.cols << "x" << view.rows
+            << ") to '" << options.output << "'.\n";
+  return kExitOk;
+}
+
+int RunView(const std::vector<std::string>& args) {
+  return GuardedRun("view", [&] {
+    ViewOptions options;
+    const auto positionals = options::ParseFlags(options, args);
+    if (options.common.help) {
+      std::cout << "Usage: avatar-studio view IMAGE [options]\n\n"
+                << "Loads a portrait exactly as the studio does and writes the viewport image.\n\nOptions:\n"
+                << options::Help(options);
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.size() <= 1) << "expected one IMAGE, got " << positionals.size() << " arguments";
+    if (!positionals.empty()) options.input = positionals[0];
+    ApplyCommon(options.common);
+    return RunViewImpl(options, ProcessContext());
+  });
+}
+
+}  // namespace avatar::app

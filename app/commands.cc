@@ -1,0 +1,132 @@
+#include "app/commands.h"
+
+#include <csignal>
+#include <cstring>
+#include <iostream>
+
+#include <opencv2/core/version.hpp>
+#include <torch/version.h>
+
+#include "core/util/error.h"
+#include "core/util/logging.h"
+#include "core/util/threads.h"
+#include "core/util/version.h"
+
+namespace avatar::app {
+namespace {
+
+void OnSigint(int /*signal*/) {
+  ProcessContext().RequestCancel();
+  // A second Ctrl+C ends the process at once.
+  std::signal(SIGINT, SIG_DFL);
+}
+
+void PrintTopHelp() {
+  std::cout << "Avatar Studio " << kVersion << ": a 3D head avatar from one portrait photo.\n\n"
+            << "Usage:\n"
+            << "  avatar-studio [--open IMAGE] [GUI options]   start the studio (GUI)\n"
+            << "  avatar-studio COMMAND [options]              run a command without the GUI\n"
+            << "  avatar-studio --help | --version\n\nCommands:\n";
+  for (const auto& c : CommandTable()) {
+    std::string name = c.name;
+    name.resize(16, ' ');
+    std::cout << "  " << name << c.summary << (c.run == nullptr ? " (not in this version yet)" : "") << "\n";
+  }
+  std::cout << "\nRun 'avatar-studio COMMAND --help' for a command's options.\n"
+            << "Exit codes: 0 ok, 1 error, 2 usage error, 130 cancelled.\n";
+}
+
+}  // namespace
+
+void CommonOptions::Validate() const {
+  AVATAR_CHECK_OPTION(threads >= 0 && threads <= 1024) << "--threads must be within 0..1024, got " << threads;
+}
+
+RunContext& ProcessContext() {
+  static RunContext ctx;
+  return ctx;
+}
+
+void ApplyCommon(const CommonOptions& common) {
+  common.Validate();
+  if (common.verbose) SetLogLevel(LogLevel::kDebug);
+  ConfigureThreads(common.threads);
+}
+
+const std::vector<Command>& CommandTable() {
+  static const std::vector<Command> table = {
+      {"view", "load a portrait as the studio does and write the viewport image", &RunView},
+      {"analyze", "detect the face, landmarks, crop and matte of a photo or video", nullptr},
+      {"fit", "fit the morphable face model to a portrait", nullptr},
+      {"build-morphable", "build the morphable face model from the packaged clips", nullptr},
+      {"inspect", "list the network's modules, shapes, parameters and FLOPs", nullptr},
+      {"reconstruct", "reconstruct an avatar from a portrait", nullptr},
+      {"render", "render an avatar from a camera and expression", nullptr},
+      {"animate", "drive an avatar with a video or keyframes and export a clip", nullptr},
+      {"bench", "measure the speed of the renderer and the model", nullptr},
+      {"train", "train the network", nullptr},
+      {"eval", "evaluate a trained network", nullptr},
+  };
+  return table;
+}
+
+int GuardedRun(const char* command, const std::function<int()>& body) {
+  const std::string who = std::string("avatar-studio ") + command;
+  try {
+    return body();
+  } catch (const InvalidOptions& e) {
+    std::cerr << who << ": " << e.what() << "\nRun '" << who << " --help' for usage.\n";
+    return kExitUsage;
+  } catch (const Cancelled&) {
+    std::cerr << who << ": cancelled\n";
+    return kExitCancelled;
+  } catch (const Error& e) {
+    std::cerr << who << ": error: " << e.what() << "\n";
+    return kExitError;
+  } catch (const std::exception& e) {
+    std::cerr << who << ": internal error: " << e.what() << "\nPlease report this as a bug.\n";
+    return kExitError;
+  }
+}
+
+int Main(int argc, char** argv) {
+  std::signal(SIGINT, OnSigint);
+  std::vector<std::string> args(argv + 1, argv + argc);
+  if (!args.empty()) {
+    const std::string first = args[0];
+    if (first == "--help" || first == "-h" || first == "help") {
+      PrintTopHelp();
+      return kExitOk;
+    }
+    if (first == "--version") {
+      std::cout << "avatar-studio " << kVersion << " (LibTorch " << TORCH_VERSION << ", OpenCV " << CV_VERSION
+                << ")\n";
+      return kExitOk;
+    }
+    if (first[0] != '-') {
+      for (const auto& c : CommandTable()) {
+        if (first != c.name) continue;
+        if (c.run == nullptr) {
+          std::cerr << "avatar-studio " << c.name << ": not available in version " << kVersion
+                    << " yet (" << c.summary << "). See 'avatar-studio --help' for what this version can do.\n";
+          return kExitError;
+        }
+        return c.run(std::vector<std::string>(args.begin() + 1, args.end()));
+      }
+      std::cerr << "avatar-studio: unknown command '" << first << "'. Run 'avatar-studio --help' for the list.\n";
+      return kExitUsage;
+    }
+  }
+  return RunGui(argc, argv, args);
+}
+
+}  // namespace avatar::app
+
+#ifndef AVATAR_WITH_GUI
+namespace avatar::app {
+int RunGui(int /*argc*/, char** /*argv*/, const std::vector<std::string>& /*args*/) {
+  std::cerr << "avatar-studio: this build has no GUI (AVATAR_BUILD_GUI=OFF); run 'avatar-studio --help' for commands.\n";
+  return kExitUsage;
+}
+}  // namespace avatar::app
+#endif

@@ -1,0 +1,68 @@
+#pragma once
+// The avatar-studio command table. Every subcommand is RunX(args) -> exit code, which
+// parses flags into XOptions and calls RunXImpl(options, ctx); tests call the Impl.
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "core/util/run_context.h"
+
+namespace avatar::app {
+
+// Exit codes shared by every command.
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitError = 1;
+inline constexpr int kExitUsage = 2;
+inline constexpr int kExitCancelled = 130;
+
+// Options every command accepts.
+struct CommonOptions {
+  // LibTorch intra-op threads; 0 = all cores (env AVATAR_THREADS overrides 0).
+  int threads = 0;
+  // Folder with the installed model data and samples ("" = AVATAR_DATA_DIR or the default cache).
+  std::string data_dir;
+  // Print debug log lines.
+  bool verbose = false;
+  // Print this command's help.
+  bool help = false;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("threads", threads, "LibTorch intra-op threads (0 = all cores, or AVATAR_THREADS)");
+    v("data_dir", data_dir, "Folder with the installed models and samples (default: AVATAR_DATA_DIR, then ~/.cache/avatar-studio)");
+    v("verbose", verbose, "Print debug log lines", 'v');
+    v("help", help, "Show this help", 'h');
+  }
+  void Validate() const;
+};
+
+using CommandFn = int (*)(const std::vector<std::string>& args);
+
+struct Command {
+  const char* name;
+  const char* summary;
+  CommandFn run;       // nullptr: reserved for a capability that is not built yet.
+};
+
+const std::vector<Command>& CommandTable();
+
+// The process-wide context that SIGINT cancels.
+RunContext& ProcessContext();
+
+// Applies the common options (threads, log level). Returns false if help was requested.
+void ApplyCommon(const CommonOptions& common);
+
+// Runs `body` and maps exceptions to exit codes, printing errors on stderr.
+int GuardedRun(const char* command, const std::function<int()>& body);
+
+// The entry point used by main(): dispatches to the GUI or a subcommand.
+int Main(int argc, char** argv);
+
+// Subcommands.
+int RunView(const std::vector<std::string>& args);
+
+// GUI (defined in gui_launch.cc when the GUI is built).
+int RunGui(int argc, char** argv, const std::vector<std::string>& args);
+
+}  // namespace avatar::app

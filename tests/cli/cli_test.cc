@@ -1,0 +1,101 @@
+// Runs the real avatar-studio executable and checks exit codes and messages.
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "common/run_process.h"
+#include "common/temp_dir.h"
+#include "core/io/image_io.h"
+
+namespace avatar {
+namespace {
+
+using avatar::testing::ProcessResult;
+using avatar::testing::TempDir;
+
+ProcessResult Studio(const std::string& args, const std::string& env = "") {
+  // No display: the CLI must never need one.
+  return avatar::testing::RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
+                                     "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM " + env);
+}
+
+TEST(Cli, HelpListsTheCommands) {
+  const auto r = Studio("--help");
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  for (const char* name : {"view", "analyze", "fit", "build-morphable", "inspect", "reconstruct", "render", "animate",
+                           "bench", "train", "eval"}) {
+    EXPECT_NE(r.out.find(std::string("  ") + name + " "), std::string::npos) << name << "\n" << r.out;
+  }
+  EXPECT_NE(r.out.find("130 cancelled"), std::string::npos);
+}
+
+TEST(Cli, VersionPrintsTheVersion) {
+  const auto r = Studio("--version");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_EQ(r.out.rfind("avatar-studio 0.", 0), 0u) << r.out;
+  EXPECT_NE(r.out.find("LibTorch"), std::string::npos);
+}
+
+TEST(Cli, UnknownCommandIsAUsageError) {
+  const auto r = Studio("frobnicate");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("unknown command 'frobnicate'"), std::string::npos) << r.err;
+}
+
+TEST(Cli, UnknownFlagIsAUsageError) {
+  const auto r = Studio("view x.jpg --bogus 3");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--bogus"), std::string::npos) << r.err;
+}
+
+TEST(Cli, ReservedCommandSaysItIsNotAvailableYet) {
+  const auto r = Studio("train");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("not available"), std::string::npos) << r.err;
+}
+
+TEST(Cli, MissingInputFileIsAnErrorNamingTheFile) {
+  TempDir dir;
+  const auto r = Studio("view '" + (dir / "no_such_portrait.jpg").string() + "' -o '" + (dir / "o.png").string() + "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("no_such_portrait.jpg"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("check the path"), std::string::npos) << r.err;
+  EXPECT_TRUE(dir.List().empty());
+}
+
+TEST(Cli, ViewWritesTheViewportImage) {
+  TempDir dir;
+  cv::Mat portrait(60, 40, CV_8UC3, cv::Scalar(0, 0, 255));
+  cv::imwrite((dir / "p.png").string(), portrait);
+  const auto r = Studio("view '" + (dir / "p.png").string() + "' --width 100 --height 120 -o '" +
+                        (dir / "v.png").string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const cv::Mat v = LoadImageBgr(dir / "v.png");
+  EXPECT_EQ(v.size(), cv::Size(100, 120));
+  EXPECT_EQ(v.at<cv::Vec3b>(60, 50), cv::Vec3b(0, 0, 255));  // Portrait in the centre.
+  EXPECT_EQ(v.at<cv::Vec3b>(60, 2), cv::Vec3b(0, 0, 0));     // Black margin.
+}
+
+TEST(Cli, BadOptionValuesAreUsageErrors) {
+  const auto r = Studio("view x.png --width 3");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--width"), std::string::npos) << r.err;
+  const auto t = Studio("view x.png", "AVATAR_THREADS=lots");
+  EXPECT_EQ(t.exit_code, 2);
+  EXPECT_NE(t.err.find("AVATAR_THREADS"), std::string::npos) << t.err;
+}
+
+TEST(Cli, WithoutADisplayTheGuiRunsTheHeadlessEquivalent) {
+  TempDir dir;
+  cv::Mat portrait(30, 30, CV_8UC3, cv::Scalar(255, 0, 0));
+  cv::imwrite((dir / "p.png").string(), portrait);
+  const auto r = Studio("--open '" + (dir / "p.png").string() + "' --headless-output '" + (dir / "h.png").string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("No display found"), std::string::npos) << r.out;
+  EXPECT_EQ(LoadImageBgr(dir / "h.png").at<cv::Vec3b>(400, 400), cv::Vec3b(255, 0, 0));
+  const auto bare = Studio("");
+  EXPECT_EQ(bare.exit_code, 2);
+  EXPECT_NE(bare.err.find("no display"), std::string::npos) << bare.err;
+}
+
+}  // namespace
+}  // namespace avatar
