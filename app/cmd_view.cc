@@ -41,4 +41,6 @@ int RunView(const std::vector<std::string>& args) {
   });
 }
 
+AVATAR_REGISTER_COMMAND("view", "load a portrait as the studio does and write the viewport image", RunView);
+
 }  // namespace avatar::app

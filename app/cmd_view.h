@@ -28,6 +28,9 @@ struct ViewOptions {
   void Validate() const;
 };
 
+// Parses flags and runs; returns an exit code.
+int RunView(const std::vector<std::string>& args);
+
 // Throws avatar::Error subclasses; returns kExitOk.
 int RunViewImpl(const ViewOptions& options, RunContext& ctx);
 

@@ -53,9 +53,24 @@ void ApplyCommon(const CommonOptions& common) {
   ConfigureThreads(common.threads);
 }
 
-const std::vector<Command>& CommandTable() {
-  static const std::vector<Command> table = {
-      {"view", "load a portrait as the studio does and write the viewport image", &RunView},
+namespace {
+
+std::vector<Command>& Registry() {
+  static std::vector<Command> registry;
+  return registry;
+}
+
+}  // namespace
+
+bool RegisterCommand(const Command& command) {
+  Registry().push_back(command);
+  return true;
+}
+
+std::vector<Command> CommandTable() {
+  // Help order; names without a registered implementation are reserved.
+  std::vector<Command> table = {
+      {"view", "load a portrait as the studio does and write the viewport image", nullptr},
       {"analyze", "detect the face, landmarks, crop and matte of a photo or video", nullptr},
       {"fit", "fit the morphable face model to a portrait", nullptr},
       {"build-morphable", "build the morphable face model from the packaged clips", nullptr},
@@ -67,6 +82,16 @@ const std::vector<Command>& CommandTable() {
       {"train", "train the network", nullptr},
       {"eval", "evaluate a trained network", nullptr},
   };
+  for (const Command& registered : Registry()) {
+    bool reserved = false;
+    for (Command& c : table) {
+      if (std::string(c.name) == registered.name) {
+        c = registered;
+        reserved = true;
+      }
+    }
+    if (!reserved) table.push_back(registered);
+  }
   return table;
 }
 

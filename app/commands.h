@@ -45,7 +45,12 @@ struct Command {
   CommandFn run;       // nullptr: reserved for a capability that is not built yet.
 };
 
-const std::vector<Command>& CommandTable();
+// Every command, in help order: implemented ones plus the names reserved for capabilities
+// still to come (run == nullptr).
+std::vector<Command> CommandTable();
+
+// Registers an implemented command (see AVATAR_REGISTER_COMMAND). Returns true.
+bool RegisterCommand(const Command& command);
 
 // The process-wide context that SIGINT cancels.
 RunContext& ProcessContext();
@@ -59,10 +64,12 @@ int GuardedRun(const char* command, const std::function<int()>& body);
 // The entry point used by main(): dispatches to the GUI or a subcommand.
 int Main(int argc, char** argv);
 
-// Subcommands.
-int RunView(const std::vector<std::string>& args);
-
 // GUI (defined in gui_launch.cc when the GUI is built).
 int RunGui(int argc, char** argv, const std::vector<std::string>& args);
 
 }  // namespace avatar::app
+
+// In a command's own source file (app/cmd_x.cc):
+//   AVATAR_REGISTER_COMMAND("x", "one-line summary", RunX);
+#define AVATAR_REGISTER_COMMAND(name, summary, fn) \
+  static const bool avatar_command_registered_##fn = ::avatar::app::RegisterCommand({name, summary, &fn})
