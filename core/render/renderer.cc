@@ -121,7 +121,7 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
     // Sort the union once; only the scalar densities are permuted. The per-sample weights are
     // mapped back to the unsorted order, so the features never need a gather.
     torch::Tensor sorted_depths, order;
-    std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), /*stable=*/true, 2);
+    std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), c10::optional<bool>(true), /*dim=*/2, /*descending=*/false);
     const torch::Tensor sorted_raw = torch::cat({coarse.raw, fine.raw}, 2).gather(2, order);
     weights = ComputeMarchWeights(sorted_raw, sorted_depths, options.far);
     torch::Tensor inverse;

@@ -1,0 +1,65 @@
+#pragma once
+// `avatar-studio bench SUBJECT [options]`: speed measurements. Each subject (render, and later
+// model, ...) is a function that parses its own flags, registered with
+// AVATAR_REGISTER_BENCH_SUBJECT("name", "summary", RunBenchName) in any app source file.
+// Every subject measures this machine's baseline (GEMM peak) in the same run and reports
+// ratios, because the machines are shared and noisy.
+
+#include <string>
+#include <vector>
+
+#include "app/commands.h"
+
+namespace avatar::app {
+
+using BenchSubjectFn = int (*)(const std::vector<std::string>& args);
+
+struct BenchSubject {
+  const char* name;     // word after `bench`
+  const char* summary;  // one line for `bench --help`
+  BenchSubjectFn run;   // parses args (flags after the subject) and returns an exit code
+};
+
+// Registers a subject (see AVATAR_REGISTER_BENCH_SUBJECT). Returns true.
+bool RegisterBenchSubject(const BenchSubject& subject);
+// Registered subjects in registration order.
+std::vector<BenchSubject> BenchSubjects();
+
+// Dispatches `bench SUBJECT ...`; returns an exit code.
+int RunBench(const std::vector<std::string>& args);
+
+// Measured fp32 GEMM rate of this machine with the current thread setting: the best of
+// `repeats` n x n x n products (2 n^3 FLOPs each), in GFLOP/s.
+double MeasureGemmGflops(int64_t n = 1024, int repeats = 5);
+
+// Options of `bench render`.
+struct BenchRenderOptions {
+  // Comma-separated presets: paper, medium, small, tiny (or "all").
+  std::string presets = "all";
+  // Timed renders per preset (after one warm-up); the median is reported.
+  int repeats = 3;
+  // Cameras rendered together.
+  int batch = 1;
+  // Rays per parallel work item.
+  int chunk_rays = 256;
+  // Threads, data folder, verbosity.
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("presets", presets, "Comma-separated presets: paper,medium,small,tiny or all");
+    v("repeats", repeats, "Timed renders per preset (median reported)");
+    v("batch", batch, "Cameras rendered together");
+    v("chunk_rays", chunk_rays, "Rays per parallel work item");
+    common.Visit(v);
+  }
+  void Validate() const;
+};
+
+// Runs the render benchmark and prints a table; returns kExitOk. Throws avatar::Error.
+int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx);
+
+}  // namespace avatar::app
+
+#define AVATAR_REGISTER_BENCH_SUBJECT(name, summary, fn) \
+  static const bool avatar_bench_subject_registered_##fn = ::avatar::app::RegisterBenchSubject({name, summary, &fn})
