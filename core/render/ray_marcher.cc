@@ -12,7 +12,9 @@ MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::
   const torch::Tensor t0 = depths.narrow(2, 0, s - 1), t1 = depths.narrow(2, 1, s - 1);
   const torch::Tensor delta = t1 - t0;
   const torch::Tensor raw_mid = 0.5 * (raw_density.narrow(2, 0, s - 1) + raw_density.narrow(2, 1, s - 1));
-  const torch::Tensor sigma = torch::softplus(raw_mid - 1.0);
+  // The cap only matters for an infinite raw density (inf * a zero-length interval = NaN); any
+  // finite density above it is opaque within 1e-30 world units anyway.
+  const torch::Tensor sigma = torch::softplus(raw_mid - 1.0).clamp_max(kMaxDensity);
   const torch::Tensor tau = sigma * delta;                                   // [B,N,S-1] >= 0
   const torch::Tensor cum = torch::cumsum(tau, 2);                           // inclusive
   const torch::Tensor before = torch::cat({torch::zeros_like(cum.narrow(2, 0, 1)), cum.narrow(2, 0, s - 2)}, 2);

@@ -3,7 +3,7 @@
 //
 // For S sorted samples there are S-1 intervals i = [t_i, t_{i+1}] with length delta_i,
 // midpoint m_i, raw density (r_i + r_{i+1}) / 2 and feature (c_i + c_{i+1}) / 2:
-//   sigma_i = softplus(raw_i - 1),   tau_i = sigma_i * delta_i  (optical depth)
+//   sigma_i = min(softplus(raw_i - 1), kMaxDensity),   tau_i = sigma_i * delta_i  (optical depth)
 //   T_i     = exp(-sum_{j<i} tau_j)  (transmittance, from an exclusive cumulative sum)
 //   alpha_i = 1 - exp(-tau_i)        (computed as -expm1(-tau_i))
 //   w_i     = T_i * alpha_i
@@ -21,6 +21,8 @@
 
 namespace avatar::render {
 
+// Upper bound on sigma (see ray_marcher.cc).
+inline constexpr double kMaxDensity = 1e30;
 // Weight of the far-plane fallback in the depth average (see above).
 inline constexpr double kEmptyRayDepthWeight = 1e-6;
 

@@ -124,6 +124,7 @@ RenderOutput RenderTriplanes(const torch::Tensor& planes, const PointDecoder& de
                              RenderProfile* profile = nullptr);
 // Same with camera labels [B,25].
 RenderOutput RenderTriplanes(const torch::Tensor& planes, const PointDecoder& decoder, const torch::Tensor& labels,
-                             const RenderOptions& options, c10::optional<at::Generator> generator = c10::nullopt);
+                             const RenderOptions& options, c10::optional<at::Generator> generator = c10::nullopt,
+                             RenderProfile* profile = nullptr);
 
 }  // namespace avatar::render
