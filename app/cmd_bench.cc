@@ -185,10 +185,10 @@ int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
     const double flops = decoder->FlopsPerPoint() * points / options.repeats;
     const double gflops = decode_wall > 0 ? flops / decode_wall / 1e9 : 0.0;
     std::ostringstream row;
-    row << "| " << rc.name << " | " << b << "x" << rc.resolution << "^2 | " << rc.num_coarse << "+"
-        << rc.num_importance << " | 3x32x" << rc.plane_size << "^2 | " << Fixed(median, 3) << " | "
-        << Fixed(rays / median / 1e3, 1) << "k | " << Fixed(samples / median / 1e6, 2) << "M | "
-        << Fixed(100.0 * sample_ns / total_ns, 0) << "% | " << Fixed(100.0 * decode_ns / total_ns, 0) << "% | "
+    row << "| " << rc.name << " | " << b << "x" << rc.resolution << "^2 | " << rc.num_coarse << "+" << rc.num_importance
+        << " | 3x32x" << rc.plane_size << "^2 | " << Fixed(median, 3) << " | " << Fixed(rays / median / 1e3, 1)
+        << "k | " << Fixed(samples / median / 1e6, 2) << "M | " << Fixed(100.0 * sample_ns / total_ns, 0) << "% | "
+        << Fixed(100.0 * decode_ns / total_ns, 0) << "% | "
         << Fixed(100.0 * (total_ns - sample_ns - decode_ns) / total_ns, 0) << "% | " << Fixed(gflops, 1) << " | "
         << Fixed(100.0 * gflops / gemm_before, 0) << "% |";
     std::cout << row.str() << std::endl;
@@ -202,7 +202,8 @@ int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
 }
 
 AVATAR_REGISTER_COMMAND("bench", "measure the speed of the renderer and the model", RunBench);
-AVATAR_REGISTER_BENCH_SUBJECT("render", "volume renderer: rays/s, samples/s, stage shares, decoder GFLOP/s vs GEMM peak",
+AVATAR_REGISTER_BENCH_SUBJECT("render",
+                              "volume renderer: rays/s, samples/s, stage shares, decoder GFLOP/s vs GEMM peak",
                               RunBenchRender);
 
 }  // namespace avatar::app

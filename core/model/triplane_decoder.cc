@@ -52,12 +52,12 @@ torch::Tensor TriplaneDecoderImpl::forward(const torch::Tensor& features) {
   return out.view(out_shape);
 }
 
-void TriplaneDecoderImpl::SetEffectiveWeights(const torch::Tensor& w1, const torch::Tensor& b1,
-                                              const torch::Tensor& w2, const torch::Tensor& b2) {
+void TriplaneDecoderImpl::SetEffectiveWeights(const torch::Tensor& w1, const torch::Tensor& b1, const torch::Tensor& w2,
+                                              const torch::Tensor& b2) {
   AVATAR_CHECK_INPUT(w1.sizes() == fc1_weight.sizes() && b1.sizes() == fc1_bias.sizes() &&
                      w2.sizes() == fc2_weight.sizes() && b2.sizes() == fc2_bias.sizes())
-      << "effective decoder weights have the wrong shapes: " << w1.sizes() << " " << b1.sizes() << " "
-      << w2.sizes() << " " << b2.sizes();
+      << "effective decoder weights have the wrong shapes: " << w1.sizes() << " " << b1.sizes() << " " << w2.sizes()
+      << " " << b2.sizes();
   torch::NoGradGuard no_grad;
   const auto dtype = fc1_weight.scalar_type();
   fc1_weight.copy_(w1.to(fc1_weight.device(), dtype) * std::sqrt(static_cast<double>(in_)));

@@ -123,10 +123,9 @@ torch::Tensor OrbitCam2World(const OrbitPose& pose, const torch::TensorOptions& 
   const double pitch = pose.pitch * kDegToRad;
   const auto f64 = torch::TensorOptions().dtype(torch::kFloat64);
   const torch::Tensor target = torch::tensor({pose.target_x, pose.target_y, pose.target_z}, f64).view({1, 3});
-  const torch::Tensor offset = torch::tensor({std::sin(yaw) * std::cos(pitch), std::sin(pitch),
-                                              std::cos(yaw) * std::cos(pitch)},
-                                             f64)
-                                   .view({1, 3});
+  const torch::Tensor offset =
+      torch::tensor({std::sin(yaw) * std::cos(pitch), std::sin(pitch), std::cos(yaw) * std::cos(pitch)}, f64)
+          .view({1, 3});
   const torch::Tensor eye = target + pose.radius * offset;
   const torch::Tensor roll = torch::full({1}, pose.roll * kDegToRad, f64);
   // Built in double, so that yaw = pitch = roll = 0 reproduces the frontal constant exactly.
@@ -137,10 +136,10 @@ torch::Tensor ProjectPoints(const torch::Tensor& points, const Cameras& cameras)
   CheckCameras(cameras);
   AVATAR_CHECK_INPUT(points.dim() == 3 && points.size(2) == 3 && points.size(0) == cameras.batch())
       << "points must be [B,P,3] with B = " << cameras.batch() << ", got " << points.sizes();
-  const torch::Tensor rot = cameras.cam2world.narrow(1, 0, 3).narrow(2, 0, 3);     // [B,3,3]
-  const torch::Tensor centre = cameras.cam2world.narrow(1, 0, 3).select(2, 3);      // [B,3]
+  const torch::Tensor rot = cameras.cam2world.narrow(1, 0, 3).narrow(2, 0, 3);  // [B,3,3]
+  const torch::Tensor centre = cameras.cam2world.narrow(1, 0, 3).select(2, 3);  // [B,3]
   // p_cam = R^T (p - c), as row vectors: (p - c) R.
-  const torch::Tensor cam = torch::bmm(points - centre.unsqueeze(1), rot);           // [B,P,3]
+  const torch::Tensor cam = torch::bmm(points - centre.unsqueeze(1), rot);  // [B,P,3]
   const torch::Tensor z = cam.select(2, 2);
   const torch::Tensor xn = cam.select(2, 0) / z;
   const torch::Tensor yn = cam.select(2, 1) / z;

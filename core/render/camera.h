@@ -27,11 +27,10 @@ inline constexpr int64_t kCameraLabelSize = 25;
 
 // C_front: the fixed frontal camera (row-major cam2world): centre (0,0,2.7), looking at the
 // origin along -z, camera y pointing down the world y axis.
-inline constexpr std::array<double, 16> kFrontalCam2World = {
-    1.0, 0.0, 0.0, 0.0,   //
-    0.0, -1.0, 0.0, 0.0,  //
-    0.0, 0.0, -1.0, kCameraRadius,  //
-    0.0, 0.0, 0.0, 1.0};
+inline constexpr std::array<double, 16> kFrontalCam2World = {1.0, 0.0,  0.0,  0.0,            //
+                                                             0.0, -1.0, 0.0,  0.0,            //
+                                                             0.0, 0.0,  -1.0, kCameraRadius,  //
+                                                             0.0, 0.0,  0.0,  1.0};
 
 // A batch of cameras.
 struct Cameras {

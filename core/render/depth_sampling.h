@@ -22,8 +22,7 @@ torch::Tensor StratifiedDepths(int64_t batch, int64_t rays, int64_t samples, dou
 // p1, then average-pool k2 s1, then + 0.01); the bins are the midpoints of the coarse depths
 // and bin k (between midpoints k and k+1, k < S-3) gets the smoothed weight k+1, + 1e-5;
 // samples are drawn by inverse CDF at the quantiles described above.
-torch::Tensor ImportanceDepths(const torch::Tensor& coarse_depths, const torch::Tensor& coarse_weights,
-                               int64_t samples, bool deterministic,
-                               c10::optional<at::Generator> generator = c10::nullopt);
+torch::Tensor ImportanceDepths(const torch::Tensor& coarse_depths, const torch::Tensor& coarse_weights, int64_t samples,
+                               bool deterministic, c10::optional<at::Generator> generator = c10::nullopt);
 
 }  // namespace avatar::render

@@ -15,19 +15,20 @@ MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::
   // The cap only matters for an infinite raw density (inf * a zero-length interval = NaN); any
   // finite density above it is opaque within 1e-30 world units anyway.
   const torch::Tensor sigma = torch::softplus(raw_mid - 1.0).clamp_max(kMaxDensity);
-  const torch::Tensor tau = sigma * delta;                                   // [B,N,S-1] >= 0
-  const torch::Tensor cum = torch::cumsum(tau, 2);                           // inclusive
+  const torch::Tensor tau = sigma * delta;          // [B,N,S-1] >= 0
+  const torch::Tensor cum = torch::cumsum(tau, 2);  // inclusive
   const torch::Tensor before = torch::cat({torch::zeros_like(cum.narrow(2, 0, 1)), cum.narrow(2, 0, s - 2)}, 2);
   const torch::Tensor alpha = -torch::expm1(-tau);
   MarchWeights out;
   out.interval_weights = torch::exp(-before) * alpha;
   const torch::Tensor zero = torch::zeros_like(out.interval_weights.narrow(2, 0, 1));
-  out.sample_weights = 0.5 * (torch::cat({zero, out.interval_weights}, 2) + torch::cat({out.interval_weights, zero}, 2));
+  out.sample_weights =
+      0.5 * (torch::cat({zero, out.interval_weights}, 2) + torch::cat({out.interval_weights, zero}, 2));
   out.midpoints = 0.5 * (t0 + t1);
   out.opacity = -torch::expm1(-cum.select(2, s - 2));
   const torch::Tensor wsum = out.interval_weights.sum(2);
-  out.depth = ((out.interval_weights * out.midpoints).sum(2) + kEmptyRayDepthWeight * far) /
-              (wsum + kEmptyRayDepthWeight);
+  out.depth =
+      ((out.interval_weights * out.midpoints).sum(2) + kEmptyRayDepthWeight * far) / (wsum + kEmptyRayDepthWeight);
   return out;
 }
 

@@ -57,8 +57,8 @@ Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, doubl
   AVATAR_CHECK_INPUT(box_warp > 0.0 && std::isfinite(box_warp)) << "box_warp must be > 0, got " << box_warp;
   AVATAR_CHECK_INPUT(static_cast<bool>(decoder)) << "the tri-plane field needs a decoder";
   const bool planes_need_grad = torch::GradMode::is_enabled() && planes.requires_grad();
-  const bool fast_ok = planes.device().is_cpu() &&
-                       (planes.scalar_type() == torch::kFloat32 || planes.scalar_type() == torch::kFloat64);
+  const bool fast_ok =
+      planes.device().is_cpu() && (planes.scalar_type() == torch::kFloat32 || planes.scalar_type() == torch::kFloat64);
   torch::Tensor channels_last;
   if (!planes_need_grad && fast_ok) {
     torch::NoGradGuard no_grad;
@@ -113,15 +113,16 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
     {
       torch::NoGradGuard no_grad;
       const MarchWeights coarse_weights = ComputeMarchWeights(coarse.raw.detach(), coarse_depths, options.far);
-      fine_depths = ImportanceDepths(coarse_depths, coarse_weights.interval_weights, num_fine, options.deterministic,
-                                     generator);
+      fine_depths =
+          ImportanceDepths(coarse_depths, coarse_weights.interval_weights, num_fine, options.deterministic, generator);
     }
     const Evaluated fine = Evaluate(field, origins, directions, fine_depths);
     AVATAR_CHECK_INPUT(fine.features.size(3) == channels) << "the field changed its channel count between calls";
     // Sort the union once; only the scalar densities are permuted. The per-sample weights are
     // mapped back to the unsorted order, so the features never need a gather.
     torch::Tensor sorted_depths, order;
-    std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), c10::optional<bool>(true), /*dim=*/2, /*descending=*/false);
+    std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), c10::optional<bool>(true),
+                                                 /*dim=*/2, /*descending=*/false);
     const torch::Tensor sorted_raw = torch::cat({coarse.raw, fine.raw}, 2).gather(2, order);
     weights = ComputeMarchWeights(sorted_raw, sorted_depths, options.far);
     torch::Tensor inverse;

@@ -91,21 +91,21 @@ Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, doubl
 
 // Per-ray results.
 struct RayRenderOutput {
-  torch::Tensor features;    // [B,N,C] in [-1,1] (decoder margin: [-1.002,1.002]); -1 for empty rays
-  torch::Tensor opacity;     // [B,N]   in [0,1]
-  torch::Tensor depth;       // [B,N]   expected depth; `far` for empty rays
-  torch::Tensor weights;     // [B,N,S-1] interval weights (return_weights), S = coarse + importance
-  torch::Tensor midpoints;   // [B,N,S-1] interval midpoint depths (return_weights)
+  torch::Tensor features;   // [B,N,C] in [-1,1] (decoder margin: [-1.002,1.002]); -1 for empty rays
+  torch::Tensor opacity;    // [B,N]   in [0,1]
+  torch::Tensor depth;      // [B,N]   expected depth; `far` for empty rays
+  torch::Tensor weights;    // [B,N,S-1] interval weights (return_weights), S = coarse + importance
+  torch::Tensor midpoints;  // [B,N,S-1] interval midpoint depths (return_weights)
 };
 
 // Image results, R = options.resolution.
 struct RenderOutput {
-  torch::Tensor features;    // [B,C,R,R] in [-1,1] as above
-  torch::Tensor rgb;         // [B,3,R,R] = features channels 0..2 (a view)
-  torch::Tensor opacity;     // [B,1,R,R] in [0,1]
-  torch::Tensor depth;       // [B,1,R,R]
-  torch::Tensor weights;     // [B,R*R,S-1] (return_weights)
-  torch::Tensor midpoints;   // [B,R*R,S-1] (return_weights)
+  torch::Tensor features;   // [B,C,R,R] in [-1,1] as above
+  torch::Tensor rgb;        // [B,3,R,R] = features channels 0..2 (a view)
+  torch::Tensor opacity;    // [B,1,R,R] in [0,1]
+  torch::Tensor depth;      // [B,1,R,R]
+  torch::Tensor weights;    // [B,R*R,S-1] (return_weights)
+  torch::Tensor midpoints;  // [B,R*R,S-1] (return_weights)
 };
 
 // Renders arbitrary rays (origins, directions [B,N,3], directions unit length) through a field.

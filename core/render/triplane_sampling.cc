@@ -71,15 +71,14 @@ AVATAR_SIMD_CLONES void SampleRangeFloat(const float* planes, int64_t h, int64_t
   SampleRange<float>(planes, h, w, c, points, p, scale, out, begin, end);
 }
 
-AVATAR_SIMD_CLONES void SampleRangeDouble(const double* planes, int64_t h, int64_t w, int64_t c,
-                                          const double* points, int64_t p, double scale, double* out, int64_t begin,
-                                          int64_t end) {
+AVATAR_SIMD_CLONES void SampleRangeDouble(const double* planes, int64_t h, int64_t w, int64_t c, const double* points,
+                                          int64_t p, double scale, double* out, int64_t begin, int64_t end) {
   SampleRange<double>(planes, h, w, c, points, p, scale, out, begin, end);
 }
 
 template <typename T>
-void SampleKernel(const T* planes, int64_t batch, int64_t h, int64_t w, int64_t c, const T* points, int64_t p,
-                  T scale, T* out) {
+void SampleKernel(const T* planes, int64_t batch, int64_t h, int64_t w, int64_t c, const T* points, int64_t p, T scale,
+                  T* out) {
   at::parallel_for(0, batch * p, 1024, [&](int64_t begin, int64_t end) {
     if constexpr (std::is_same<T, float>::value) {
       SampleRangeFloat(planes, h, w, c, points, p, scale, out, begin, end);
@@ -92,8 +91,7 @@ void SampleKernel(const T* planes, int64_t batch, int64_t h, int64_t w, int64_t 
 }  // namespace
 
 torch::Tensor PlanesChannelsLast(const torch::Tensor& planes) {
-  AVATAR_CHECK_INPUT(planes.defined() && planes.dim() == 5 && planes.size(1) == 3)
-      << "tri-planes must be [B,3,C,H,W]";
+  AVATAR_CHECK_INPUT(planes.defined() && planes.dim() == 5 && planes.size(1) == 3) << "tri-planes must be [B,3,C,H,W]";
   return planes.permute({0, 1, 3, 4, 2}).contiguous();
 }
 
@@ -102,11 +100,12 @@ torch::Tensor SampleTriplanesReference(const torch::Tensor& planes, const torch:
   const int64_t b = planes.size(0), c = planes.size(2), h = planes.size(3), w = planes.size(4);
   const int64_t p = points.size(1);
   const torch::Tensor q = points * (2.0 / box_warp);
-  const torch::Tensor index = torch::tensor({kPlaneAxes[0][0], kPlaneAxes[0][1], kPlaneAxes[1][0], kPlaneAxes[1][1],
-                                             kPlaneAxes[2][0], kPlaneAxes[2][1]},
-                                            torch::TensorOptions().dtype(torch::kLong).device(points.device()));
+  const torch::Tensor index = torch::tensor(
+      {kPlaneAxes[0][0], kPlaneAxes[0][1], kPlaneAxes[1][0], kPlaneAxes[1][1], kPlaneAxes[2][0], kPlaneAxes[2][1]},
+      torch::TensorOptions().dtype(torch::kLong).device(points.device()));
   // [B,P,6] -> [B,P,3,2] -> [B,3,P,2] -> [B*3,1,P,2]
-  const torch::Tensor grid = q.index_select(2, index).view({b, p, 3, 2}).permute({0, 2, 1, 3}).reshape({b * 3, 1, p, 2});
+  const torch::Tensor grid =
+      q.index_select(2, index).view({b, p, 3, 2}).permute({0, 2, 1, 3}).reshape({b * 3, 1, p, 2});
   const torch::Tensor sampled = torch::grid_sampler(planes.reshape({b * 3, c, h, w}), grid, /*bilinear*/ 0,
                                                     /*zeros*/ 0, /*align_corners=*/false);  // [B*3,C,1,P]
   return sampled.view({b, 3, c, p}).mean(1).transpose(1, 2);

@@ -16,8 +16,8 @@ namespace {
 using testing::CoordinatePlanes;
 using testing::Decode;
 using testing::RaysThrough;
-using testing::ShapeDecoder;
 using testing::Shape;
+using testing::ShapeDecoder;
 
 const auto kF64 = torch::TensorOptions().dtype(torch::kFloat64);
 
@@ -25,8 +25,8 @@ torch::Tensor CameraOrigin() { return torch::tensor({0.0, 0.0, kCameraRadius}, k
 
 // Targets on the z = 0 plane, spread across the shape (and beyond it for the sphere).
 torch::Tensor Targets() {
-  return torch::tensor({0.0, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0, -0.17, 0.0, 0.21, 0.13, 0.0, -0.26, 0.05, 0.0, 0.3,
-                        0.3, 0.0, -0.05, 0.33, 0.0},
+  return torch::tensor({0.0, 0.0,   0.0,  0.1, 0.0, 0.0, 0.0, -0.17, 0.0,  0.21, 0.13,
+                        0.0, -0.26, 0.05, 0.0, 0.3, 0.3, 0.0, -0.05, 0.33, 0.0},
                        kF64)
       .view({-1, 3});
 }
@@ -68,7 +68,9 @@ TEST_F(AnalyticTest, SlabOpacityMatchesBeerLambert) {
     EXPECT_LE(err, 2.0 * sigma * spacing) << n;
     EXPECT_LE(err, previous) << "error must not grow with more samples";
     previous = err;
-    if (n == 16384) EXPECT_LE(err, 1e-4);
+    if (n == 16384) {
+      EXPECT_LE(err, 1e-4);
+    }
     // Feature channel 0 is a constant colour c: composite = opacity * c, mapped to [-1,1].
     const double c = 0.8;
     EXPECT_LE((out.features[0].select(1, 0) - (2.0 * c * out.opacity[0] - 1.0)).abs().max().item<double>(), 1e-9);
@@ -98,7 +100,9 @@ TEST_F(AnalyticTest, SphereOpacityMatchesBeerLambert) {
     EXPECT_LE(err, 2.0 * sigma * spacing + 2e-5) << n;
     EXPECT_LE(err, previous);
     previous = err;
-    if (n == 16384) EXPECT_LE(err, 1e-4);
+    if (n == 16384) {
+      EXPECT_LE(err, 1e-4);
+    }
   }
   // The published sampling (48 + 48) is within its coarse spacing bound.
   const RayRenderOutput paper = RenderRays(field, origins, dirs, Samples(48, 48));
@@ -122,8 +126,7 @@ TEST_F(AnalyticTest, OpaqueSphereDepthWithinOneSampleSpacing) {
     const RayRenderOutput out = RenderRays(field, origins, dirs, Samples(n, 0));
     const double spacing = (3.3 - 2.25) / n;
     const double err = (out.depth[0] - hit).abs().max().item<double>();
-    std::cout << "opaque sphere: " << n << " samples, max |depth error| = " << err << " (spacing " << spacing
-              << ")\n";
+    std::cout << "opaque sphere: " << n << " samples, max |depth error| = " << err << " (spacing " << spacing << ")\n";
     EXPECT_LE(err, spacing) << n;
     EXPECT_GE(out.opacity.min().item<double>(), 1.0 - 1e-9);
     if (first_err < 0) first_err = err;

@@ -21,7 +21,7 @@ Cameras SomeCameras() {
   c.cam2world = torch::stack({OrbitCam2World({25.0, 10.0, 7.0, 2.5, 0.0, 0.05, 0.2}, kF64),
                               OrbitCam2World({-40.0, -15.0, -3.0, 3.0}, kF64), FrontalCam2World(kF64)});
   c.intrinsics = DefaultIntrinsics(kF64).unsqueeze(0).repeat({3, 1, 1});
-  c.intrinsics[1][0][0] = 3.9;  // fx != fy
+  c.intrinsics[1][0][0] = 3.9;   // fx != fy
   c.intrinsics[1][0][1] = 0.02;  // skew
   c.intrinsics[2][0][2] = 0.47;  // off-centre principal point
   return c;
@@ -169,12 +169,12 @@ TEST(TriplaneSampling, FastKernelMatchesGridSampleReference) {
   }
   // Plane conventions: a texel centre of plane p returns (its value) / 3 for the mean.
   torch::Tensor planes = torch::zeros({1, 3, 1, 4, 4}, kF64);
-  planes[0][0][0][1][3] = 3.0;  // XY plane: row (y) 1, column (x) 3
-  planes[0][1][0][2][0] = 6.0;  // XZ plane: row (z) 2, column (x) 0
-  planes[0][2][0][0][2] = 9.0;  // ZY plane: row (y) 0, column (z) 2
+  planes[0][0][0][1][3] = 3.0;                                               // XY plane: row (y) 1, column (x) 3
+  planes[0][1][0][2][0] = 6.0;                                               // XZ plane: row (z) 2, column (x) 0
+  planes[0][2][0][0][2] = 9.0;                                               // ZY plane: row (y) 0, column (z) 2
   const auto centre = [](int i) { return (-1.0 + (i + 0.5) * 0.5) / 2.0; };  // world, box_warp 1
-  const torch::Tensor p = torch::tensor({centre(3), centre(1), 5.0,  //
-                                         centre(0), 5.0, centre(2),  //
+  const torch::Tensor p = torch::tensor({centre(3), centre(1), 5.0,          //
+                                         centre(0), 5.0, centre(2),          //
                                          5.0, centre(0), centre(2)},
                                         kF64)
                               .view({1, 3, 3});

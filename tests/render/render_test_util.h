@@ -72,8 +72,8 @@ inline TriplaneDecoder ShapeDecoder(Shape shape, double half, double sigma, doub
     }
   };
   if (shape == Shape::kSlab) {
-    const double a = 2.0 * half_n / 3.0;  // |f0| < a  <=>  |z| < half
-    add_step(kChannelZ, 1.0, a, r_in - r_out);     // f0 > -a
+    const double a = 2.0 * half_n / 3.0;            // |f0| < a  <=>  |z| < half
+    add_step(kChannelZ, 1.0, a, r_in - r_out);      // f0 > -a
     add_step(kChannelZ, 1.0, -a, -(r_in - r_out));  // minus (f0 > a)
   } else {
     add_step(kChannelRadius, -1.0, half_n * half_n / 3.0, r_in - r_out);  // |p_n|^2 / 3 < half_n^2 / 3
@@ -93,8 +93,7 @@ inline PointDecoder Decode(TriplaneDecoder decoder) {
 // Rays from `origin` through targets [N,3]: origins, unit directions [1,N,3].
 inline std::pair<torch::Tensor, torch::Tensor> RaysThrough(const torch::Tensor& origin, const torch::Tensor& targets) {
   const torch::Tensor d = targets - origin.view({1, 3});
-  return {origin.view({1, 1, 3}).expand({1, targets.size(0), 3}).contiguous(),
-          (d / d.norm(2, -1, true)).unsqueeze(0)};
+  return {origin.view({1, 1, 3}).expand({1, targets.size(0), 3}).contiguous(), (d / d.norm(2, -1, true)).unsqueeze(0)};
 }
 
 // Every output finite; features in [-1.002, 1.002], opacity in [0,1], depth in [near, far].

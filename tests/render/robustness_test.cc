@@ -48,9 +48,9 @@ TEST(HardCases, RaysThatMissTheVolume) {
   // Camera beside the box looking away from it: every sample is outside [-0.5,0.5]^3, where
   // the planes read zero; a decoder mapping zero features to empty space gives empty rays.
   Cameras cams = FrontalCameras(1);
-  cams.cam2world = LookAtCam2World(torch::tensor({{0.0f, 0.0f, 2.7f}}), torch::tensor({{0.0f, 0.0f, 5.0f}}),
-                                   torch::zeros({1}))
-                       .to(torch::kFloat32);
+  cams.cam2world =
+      LookAtCam2World(torch::tensor({{0.0f, 0.0f, 2.7f}}), torch::tensor({{0.0f, 0.0f, 5.0f}}), torch::zeros({1}))
+          .to(torch::kFloat32);
   TriplaneDecoder d = ConstantDensityDecoder(-40.0);  // zero features -> empty
   const RenderOptions o = Small();
   const RenderOutput out = RenderTriplanes(RandomPlanes(1), Decode(d), cams, o);
@@ -132,10 +132,11 @@ TEST(HardCases, GrazingRays) {
   const torch::Tensor planes = testing::CoordinatePlanes(64);
   TriplaneDecoder d = testing::ShapeDecoder(testing::Shape::kSphere, 0.3, 50.0);
   const Field field = MakeTriplaneField(planes, Decode(d), 1.0);
-  const torch::Tensor o = torch::tensor({{0.3, -0.4, 2.7}, {-0.3, 0.0, 2.7}, {0.5, 0.2, 2.7}, {0.2, -0.5, 2.7},
-                                         {-0.5, -0.5, 2.7}, {0.0, 0.3, 2.7}},
-                                        kF64)
-                            .unsqueeze(0);
+  const torch::Tensor o =
+      torch::tensor(
+          {{0.3, -0.4, 2.7}, {-0.3, 0.0, 2.7}, {0.5, 0.2, 2.7}, {0.2, -0.5, 2.7}, {-0.5, -0.5, 2.7}, {0.0, 0.3, 2.7}},
+          kF64)
+          .unsqueeze(0);
   const torch::Tensor dir = torch::tensor({0.0, 0.0, -1.0}, kF64).view({1, 1, 3}).expand({1, 6, 3}).contiguous();
   RenderOptions opts = Small();
   for (bool det : {true, false}) {
@@ -174,8 +175,8 @@ TEST(HardCases, BatchOneAndEightAreIndependent) {
   const RenderOutput all = RenderTriplanes(planes, Decode(d), cams, o);
   ExpectValidOutputs(all, o, "batch 8");
   for (int i : {0, 5}) {
-    const RenderOutput one = RenderTriplanes(planes.narrow(0, i, 1), Decode(d),
-                                             Cameras{cams.cam2world.narrow(0, i, 1), cams.intrinsics.narrow(0, i, 1)}, o);
+    const RenderOutput one = RenderTriplanes(
+        planes.narrow(0, i, 1), Decode(d), Cameras{cams.cam2world.narrow(0, i, 1), cams.intrinsics.narrow(0, i, 1)}, o);
     ExpectValidOutputs(one, o, "batch 1");
     EXPECT_LE((one.features[0] - all.features[i]).abs().max().item<double>(), 1e-5) << i;
     EXPECT_LE((one.depth[0] - all.depth[i]).abs().max().item<double>(), 1e-5) << i;
@@ -194,8 +195,7 @@ TEST(HardCases, Float32AndFloat64Agree) {
   d64->to(torch::kFloat64);
   const RenderOptions o = Small();
   const RenderOutput a = RenderTriplanes(RandomPlanes(1), Decode(d32), FrontalCameras(1), o);
-  const RenderOutput b = RenderTriplanes(RandomPlanes(1).to(torch::kFloat64), Decode(d64),
-                                         FrontalCameras(1, kF64), o);
+  const RenderOutput b = RenderTriplanes(RandomPlanes(1).to(torch::kFloat64), Decode(d64), FrontalCameras(1, kF64), o);
   ExpectValidOutputs(a, o, "float32");
   ExpectValidOutputs(b, o, "float64");
   EXPECT_EQ(a.features.scalar_type(), torch::kFloat32);
