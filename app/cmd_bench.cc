@@ -69,16 +69,14 @@ std::string Fixed(double value, int digits) {
 int RunBenchRender(const std::vector<std::string>& args) {
   return GuardedRun("bench render", [&] {
     BenchRenderOptions options;
-    const auto positionals = options::ParseFlags(options, args);
-    if (options.common.help) {
-      std::cout << "Usage: avatar-studio bench render [options]\n\n"
-                << "Times the volume renderer (random tri-planes and decoder, deterministic sampling, no\n"
-                << "gradients) and compares the decoder's FLOP rate with this machine's GEMM peak.\n\nOptions:\n"
-                << options::Help(options);
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio bench render [options]",
+                      "Times the volume renderer (random tri-planes and decoder, deterministic sampling, no\n"
+                      "gradients) and compares the decoder's FLOP rate with this machine's GEMM peak.",
+                      &positionals)) {
       return kExitOk;
     }
     AVATAR_CHECK_OPTION(positionals.empty()) << "bench render takes no positional arguments";
-    ApplyCommon(options.common);
     return RunBenchRenderImpl(options, ProcessContext());
   });
 }

@@ -27,16 +27,13 @@ int RunViewImpl(const ViewOptions& options, RunContext& ctx) {
 int RunView(const std::vector<std::string>& args) {
   return GuardedRun("view", [&] {
     ViewOptions options;
-    const auto positionals = options::ParseFlags(options, args);
-    if (options.common.help) {
-      std::cout << "Usage: avatar-studio view IMAGE [options]\n\n"
-                << "Loads a portrait exactly as the studio does and writes the viewport image.\n\nOptions:\n"
-                << options::Help(options);
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio view IMAGE [options]",
+                      "Loads a portrait exactly as the studio does and writes the viewport image.", &positionals)) {
       return kExitOk;
     }
     AVATAR_CHECK_OPTION(positionals.size() <= 1) << "expected one IMAGE, got " << positionals.size() << " arguments";
     if (!positionals.empty()) options.input = positionals[0];
-    ApplyCommon(options.common);
     return RunViewImpl(options, ProcessContext());
   });
 }

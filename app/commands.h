@@ -6,6 +6,9 @@
 #include <string>
 #include <vector>
 
+#include <iostream>
+
+#include "core/util/options.h"
 #include "core/util/run_context.h"
 
 namespace avatar::app {
@@ -57,6 +60,23 @@ RunContext& ProcessContext();
 
 // Applies the common options (threads, log level). Returns false if help was requested.
 void ApplyCommon(const CommonOptions& common);
+
+// The start of every command: parses `args` into `options` (a struct with a CommonOptions
+// `common` member) and returns the positional arguments in `positionals`. With --help it
+// prints `usage`, `description` and the option list, and returns false (the command then
+// exits 0). Otherwise it applies the common options (threads, log level) and returns true.
+// Throws InvalidOptions for bad flags.
+template <typename Options>
+bool ParseCommand(Options& options, const std::vector<std::string>& args, const std::string& usage,
+                  const std::string& description, std::vector<std::string>* positionals) {
+  *positionals = options::ParseFlags(options, args);
+  if (options.common.help) {
+    std::cout << "Usage: " << usage << "\n\n" << description << "\n\nOptions:\n" << options::Help(options);
+    return false;
+  }
+  ApplyCommon(options.common);
+  return true;
+}
 
 // Runs `body` and maps exceptions to exit codes, printing errors on stderr.
 int GuardedRun(const char* command, const std::function<int()>& body);
