@@ -338,7 +338,7 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
   }
   int kexp = options.expression_components;
   if (kexp == 0) {
-    kexp = 16;
+    kexp = 24;
     while (kexp < 64 && kexp < static_cast<int>(report.expression_cumulative.size()) &&
            report.expression_cumulative[kexp - 1] < options.expression_variance) {
       ++kexp;
@@ -359,8 +359,7 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
     exp_cols.push_back(col);
     exp_std.push_back(static_cast<float>(std::sqrt(std::max(evals.at<double>(k), 1e-18))));
   }
-  cv::Mat betas = disp * pca_basis.t();  // [frames, kexp]
-  // Measures, centred, as regressors.
+  // Measured quantities of the clip frames (regressors of the controls).
   struct Regressor {
     const char* name;
     double ExpressionMeasures::*field;
@@ -372,54 +371,83 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
                                        {"brow_inner_gap", &ExpressionMeasures::brow_inner_gap},
                                        {"eye_open", nullptr},
                                        {"lip_protrusion", &ExpressionMeasures::lip_protrusion}};
-  const int nreg = static_cast<int>(regs.size());
-  cv::Mat m(frames, nreg, CV_64F);
-  std::vector<std::vector<double>> columns(nreg, std::vector<double>(frames));
+  enum { kLipGap, kCornerLift, kMouthWidth, kBrowHeight, kBrowInner, kEyeOpen, kLipProtrusion, kRegs };
+  auto value_of = [&](const ExpressionMeasures& em, int j) {
+    return regs[j].field != nullptr ? em.*regs[j].field : 0.5 * (em.eye_open_left + em.eye_open_right);
+  };
+  std::vector<std::vector<double>> columns(kRegs, std::vector<double>(frames));
   for (int t = 0; t < frames; ++t) {
-    for (int j = 0; j < nreg; ++j) {
-      const double v = regs[j].field != nullptr ? measures[t].*regs[j].field
-                                                : 0.5 * (measures[t].eye_open_left + measures[t].eye_open_right);
-      m.at<double>(t, j) = v;
-      columns[j][t] = v;
-    }
+    for (int j = 0; j < kRegs; ++j) columns[j][t] = value_of(measures[t], j);
   }
-  cv::Mat mmean;
-  cv::reduce(m, mmean, 0, cv::REDUCE_AVG);
-  m -= cv::repeat(mmean, frames, 1);
-  cv::Mat mtm = m.t() * m;
-  for (int j = 0; j < nreg; ++j) mtm.at<double>(j, j) *= 1.0 + 1e-6;
-  cv::Mat coef;  // [nreg, kexp]: beta change per unit of each measure, the others held fixed
-  cv::solve(mtm, m.t() * betas, coef, cv::DECOMP_SVD);
-  // R^2 of each measure explained by the beta (how well the PCA space represents it).
+  std::vector<double> up(kRegs), down(kRegs);
   nlohmann::json control_info = nlohmann::json::object();
-  std::vector<double> up(nreg), down(nreg);
-  for (int j = 0; j < nreg; ++j) {
+  for (int j = 0; j < kRegs; ++j) {
     up[j] = Quantile(columns[j], 0.98) - Quantile(columns[j], 0.5);
     down[j] = Quantile(columns[j], 0.5) - Quantile(columns[j], 0.02);
+    control_info["measures"][regs[j].name] = {{"median", Quantile(columns[j], 0.5)}, {"median_to_p98", up[j]},
+                                              {"p2_to_median", down[j]}};
   }
-  auto dir = [&](int j, double amount) {
-    Beta b(kexp + 2, 0.0f);
-    for (int k = 0; k < kexp; ++k) b[k] = static_cast<float>(coef.at<double>(j, k) * amount);
-    return b;
+  // Jacobian of the measures with respect to the PCA coefficients at the mean shape.
+  cv::Mat g(kRegs, kexp, CV_64F);
+  {
+    ExpressionMeasures m0 = MeasureShape(mean_pts);
+    for (int k = 0; k < kexp; ++k) {
+      const double eps = 0.05 * exp_std[k];
+      std::vector<cv::Point3f> shape = mean_pts;
+      for (int i = 0; i < kVertexCount; ++i) {
+        shape[i] += cv::Point3f(exp_cols[k][3 * i], exp_cols[k][3 * i + 1], exp_cols[k][3 * i + 2]) * static_cast<float>(eps);
+      }
+      const ExpressionMeasures m1 = MeasureShape(shape);
+      for (int j = 0; j < kRegs; ++j) g.at<double>(j, k) = (value_of(m1, j) - value_of(m0, j)) / eps;
+    }
+  }
+  // A control is the most probable expression change under the clips' statistics (minimum
+  // sum (beta_k / std_k)^2) that moves the chosen measures by the chosen amounts and leaves the
+  // listed measures unchanged: beta = S G^T (G S G^T)^-1 delta, S = diag(std^2).
+  struct Target {
+    int measure;
+    double amount;
   };
-  auto combine = [](Beta a, const Beta& b) {
-    for (size_t k = 0; k < a.size(); ++k) a[k] += b[k];
-    return a;
+  auto solve_control = [&](const std::vector<Target>& targets, const std::vector<int>& hold) {
+    const int rows = static_cast<int>(targets.size() + hold.size());
+    cv::Mat gc(rows, kexp, CV_64F), delta(rows, 1, CV_64F);
+    int r = 0;
+    for (const auto& t : targets) {
+      g.row(t.measure).copyTo(gc.row(r));
+      delta.at<double>(r++) = t.amount;
+    }
+    for (int h : hold) {
+      g.row(h).copyTo(gc.row(r));
+      delta.at<double>(r++) = 0.0;
+    }
+    cv::Mat sdiag(kexp, kexp, CV_64F, cv::Scalar(0));
+    for (int k = 0; k < kexp; ++k) sdiag.at<double>(k, k) = static_cast<double>(exp_std[k]) * exp_std[k];
+    cv::Mat gsg = gc * sdiag * gc.t();
+    cv::Mat lambda;
+    cv::solve(gsg, delta, lambda, cv::DECOMP_SVD);
+    cv::Mat beta = sdiag * gc.t() * lambda;
+    Beta out(kexp + 2, 0.0f);
+    for (int k = 0; k < kexp; ++k) out[k] = static_cast<float>(beta.at<double>(k));
+    return out;
   };
   // 4. One-sided eye closing: regress the displacement on the mean eyelid distance, then split by side.
   {
-    const int j = 5;  // eye_open
-    cv::Mat e = m.col(j).clone();
+    cv::Mat e(frames, 1, CV_64F);
+    const double emean = std::accumulate(columns[kEyeOpen].begin(), columns[kEyeOpen].end(), 0.0) / frames;
+    for (int t = 0; t < frames; ++t) e.at<double>(t) = columns[kEyeOpen][t] - emean;
     const double ee = std::max(e.dot(e), 1e-30);
     cv::Mat v = (e.t() * disp) / ee;  // [1,1404] displacement per unit of eye openness
-    const double closing = Quantile(columns[j], 0.5) - Quantile(columns[j], 0.01);
-    const double ox = mean_pts[0].x;  // mid-sagittal x
-    for (int side = 0; side < 2; ++side) {  // 0: left (x > 0), 1: right
+    // A full blink closes the median eyelid distance.
+    const double closing = Quantile(columns[kEyeOpen], 0.5);
+    // The eyelid region of each eye: a Gaussian of radius 1.6 cm around the eye centre.
+    const cv::Point3f eye_centre[2] = {(mean_pts[263] + mean_pts[362]) * 0.5f, (mean_pts[33] + mean_pts[133]) * 0.5f};
+    const double radius = 1.6 * kUnitsPerCm;
+    for (int side = 0; side < 2; ++side) {  // 0: subject's left (x > 0), 1: right
       std::vector<float> col(kCoords);
       double norm = 0.0;
       for (int i = 0; i < kVertexCount; ++i) {
-        const double x = (mean_pts[i].x - ox) / kUnitsPerCm;
-        const double w = side == 0 ? Smoothstep(-1.0, 1.0, x) : 1.0 - Smoothstep(-1.0, 1.0, x);
+        const double r = cv::norm(mean_pts[i] - eye_centre[side]) / radius;
+        const double w = std::exp(-0.5 * r * r);
         for (int k = 0; k < 3; ++k) {
           const double d = -w * v.at<double>(0, 3 * i + k);  // closing = minus opening
           col[3 * i + k] = static_cast<float>(d);
@@ -428,45 +456,70 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
       }
       norm = std::sqrt(std::max(norm, 1e-30));
       for (float& x : col) x = static_cast<float>(x / norm);
+      // Calibrate on the mean face: the coefficient that brings its eyelids together (the
+      // regression slope alone is attenuated by landmark noise in the eyelid distance).
+      const auto open_of = [&](const std::vector<cv::Point3f>& shape) {
+        const ExpressionMeasures em = MeasureShape(shape);
+        return side == 0 ? em.eye_open_left : em.eye_open_right;
+      };
+      const double eps = 1e-3;
+      std::vector<cv::Point3f> moved = mean_pts;
+      for (int i = 0; i < kVertexCount; ++i) {
+        moved[i] += cv::Point3f(col[3 * i], col[3 * i + 1], col[3 * i + 2]) * static_cast<float>(eps);
+      }
+      const double open0 = open_of(mean_pts);
+      const double slope = (open_of(moved) - open0) / eps;
+      const double full = slope < 0 ? -open0 / slope : closing * norm;
       exp_cols.push_back(col);
       // One std = half of a full closing, so that a blink is 2 std.
-      exp_std.push_back(static_cast<float>(0.5 * closing * norm));
+      exp_std.push_back(static_cast<float>(0.5 * full));
     }
-    control_info["blink"] = {{"regressor", "eye_open"}, {"closing_amount", closing}};
+    control_info["blink_closing_amount"] = closing;
   }
   const int kexp_total = kexp + 2;
   // 5. Named controls.
+  const std::vector<int> eyes_brows = {kBrowHeight, kBrowInner, kEyeOpen};
+  const std::vector<int> mouth = {kLipGap, kCornerLift, kMouthWidth, kLipProtrusion};
+  auto concat = [](std::vector<int> a, const std::vector<int>& b) {
+    a.insert(a.end(), b.begin(), b.end());
+    return a;
+  };
   std::vector<NamedControl> controls;
-  auto info = [&](const std::string& name, const std::string& how) { control_info[name] = how; };
-  controls.push_back({"jawOpen", "Jaw open", "", dir(0, up[0])});
-  info("jawOpen", "partial regression direction of the inner-lip gap; 1.0 = median to 98th percentile of the clips");
-  controls.push_back({"smile", "Smile", "", combine(dir(1, up[1]), dir(2, 0.5 * up[2]))});
-  info("smile", "mouth-corner lift (median to 98th pct) plus half the mouth-width step");
-  controls.push_back({"frown", "Frown", "", dir(1, -down[1])});
-  info("frown", "mouth corners lowered (median to 2nd percentile of the corner lift)");
-  controls.push_back({"pucker", "Pucker", "", combine(dir(2, -down[2]), dir(6, up[6]))});
-  info("pucker", "mouth narrowed (median to 2nd pct of width) plus lips pushed forward (median to 98th pct)");
-  controls.push_back({"mouthWide", "Mouth wide", "", dir(2, up[2])});
-  info("mouthWide", "mouth width, median to 98th percentile");
-  controls.push_back({"browRaise", "Brows up", "", dir(3, up[3])});
-  info("browRaise", "brow height above the upper eyelids, median to 98th percentile");
-  controls.push_back({"browFrown", "Brows frown", "", combine(dir(3, -down[3]), dir(4, -down[4]))});
-  info("browFrown", "brows lowered and inner brow ends drawn together (median to 2nd percentiles)");
+  auto add = [&](const char* name, const char* label, const std::vector<Target>& targets, const std::vector<int>& hold,
+                 const std::string& how) {
+    controls.push_back({name, label, how, solve_control(targets, hold)});
+    control_info[name] = how;
+  };
+  add("jawOpen", "Jaw open", {{kLipGap, up[kLipGap]}}, eyes_brows,
+      "inner-lip gap +(median to 98th percentile of the clips); brows and eyelids held");
+  add("smile", "Smile", {{kCornerLift, up[kCornerLift]}, {kMouthWidth, 0.5 * up[kMouthWidth]}},
+      concat({kLipGap}, eyes_brows),
+      "mouth corners lifted (median to 98th pct) and mouth widened by half its 98th-pct step; lips closed, brows and eyelids held");
+  add("frown", "Frown", {{kCornerLift, -down[kCornerLift]}}, concat({kLipGap, kMouthWidth}, eyes_brows),
+      "mouth corners lowered (median to 2nd pct); lip gap, width, brows and eyelids held");
+  add("pucker", "Pucker", {{kMouthWidth, -down[kMouthWidth]}, {kLipProtrusion, up[kLipProtrusion]}},
+      concat({kLipGap}, eyes_brows),
+      "mouth narrowed (median to 2nd pct) and lips pushed forward (median to 98th pct); lip gap, brows and eyelids held");
+  add("mouthWide", "Mouth wide", {{kMouthWidth, up[kMouthWidth]}}, concat({kLipGap, kCornerLift}, eyes_brows),
+      "mouth widened (median to 98th pct); lip gap, corner height, brows and eyelids held");
+  add("browRaise", "Brows up", {{kBrowHeight, up[kBrowHeight]}}, concat({kEyeOpen}, mouth),
+      "brows raised above the eyelids (median to 98th pct); eyelids and mouth held");
+  add("browFrown", "Brows frown", {{kBrowHeight, -down[kBrowHeight]}, {kBrowInner, -down[kBrowInner]}},
+      concat({kEyeOpen}, mouth),
+      "brows lowered and inner brow ends drawn together (median to 2nd pct); eyelids and mouth held");
   {
     Beta l(kexp_total, 0.0f), r(kexp_total, 0.0f);
     l[kexp] = 2.0f * exp_std[kexp];
     r[kexp + 1] = 2.0f * exp_std[kexp + 1];
-    controls.push_back({"blinkLeft", "Blink left", "", l});
-    controls.push_back({"blinkRight", "Blink right", "", r});
-    info("blinkLeft", "subject's left eyelids closed by the 1st-percentile eyelid distance (one-sided component)");
-    info("blinkRight", "subject's right eyelids closed likewise");
+    const std::string how = "one-sided component: regression of the frames' displacement on the eyelid distance, "
+                            "restricted to a 1.6 cm Gaussian around the eye; 1.0 brings the mean face's eyelids together";
+    controls.push_back({"blinkLeft", "Blink left", "subject's left eye; " + how, l});
+    controls.push_back({"blinkRight", "Blink right", "subject's right eye; " + how, r});
+    control_info["blinkLeft"] = controls[controls.size() - 2].description;
+    control_info["blinkRight"] = controls.back().description;
   }
-  controls.push_back({"eyesWide", "Eyes wide", "", dir(5, up[5])});
-  info("eyesWide", "mean eyelid distance, median to 98th percentile");
-  for (auto& c : controls) c.description = control_info[c.name].is_string() ? control_info[c.name].get<std::string>() : "";
-  for (int j = 0; j < nreg; ++j) {
-    control_info["regressors"][regs[j].name] = {{"median_to_p98", up[j]}, {"p2_to_median", down[j]}};
-  }
+  add("eyesWide", "Eyes wide", {{kEyeOpen, up[kEyeOpen]}}, concat({kBrowHeight, kBrowInner}, mouth),
+      "eyelids opened (median to 98th pct); brows and mouth held");
   report.controls = control_info;
   std::vector<float> id_basis(kCoords * id_cols.size()), exp_basis(kCoords * exp_cols.size());
   for (size_t r = 0; r < kCoords; ++r) {

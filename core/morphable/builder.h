@@ -6,8 +6,10 @@
 //   PCA over persons, plus documented smooth deformations where data is thin;
 // - expression: per-clip mean removed from every frame, PCA; K by variance explained;
 //   plus two one-sided eye-closing components (blinkLeft/blinkRight);
-// - named controls: multiple linear regression of the frames' beta on measured quantities
-//   (lip gap, mouth corners, mouth width, brows, eyelids, lip protrusion).
+// - named controls: for each, the most probable expression change under the clips' PCA
+//   statistics (minimum sum (beta_k/std_k)^2) that moves the named measured quantity (lip gap,
+//   mouth corners, mouth width, brows, eyelids, lip protrusion; see measures.h) by its
+//   median-to-98th-percentile step in the clips while holding the unrelated measures fixed.
 
 #include <string>
 #include <vector>
@@ -29,10 +31,10 @@ struct BuildSource {
 };
 
 struct MorphableBuildOptions {
-  // Expression components from PCA (0 = smallest K reaching expression_variance, within [16, 64]).
+  // Expression components from PCA (0 = smallest K reaching expression_variance, within [24, 64]).
   int expression_components = 0;
   // Fraction of the expression variance the automatic K must explain.
-  double expression_variance = 0.97;
+  double expression_variance = 0.995;
   // Largest number of identity components taken from PCA over persons.
   int max_identity_components = 24;
   // Add the smooth identity deformations (face width, face length, jaw width, nose, eye spacing).

@@ -31,7 +31,7 @@ struct FitOptions {
   // Estimate expression (false: beta = 0).
   bool fit_expression = true;
   // Video: weight of (beta_t - beta_{t-1}) in units of the expression std.
-  double temporal_smoothness = 0.5;
+  double temporal_smoothness = 4.0;
   // Video: identity/expression alternation rounds.
   int sequence_rounds = 2;
 
