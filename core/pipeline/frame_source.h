@@ -32,16 +32,20 @@ struct ViewPose {
 
 // Named expression controls (see the morphable model's control names) with values in
 // [0,1]; missing names are 0. `coefficients` carries a raw morphable-model expression
-// vector (driving from a video) that is added before the named controls; empty = none.
+// vector (driving from a video): an offset from the portrait's own expression (relative
+// transfer), or the whole expression when `coefficients_absolute`; empty = none. The named
+// controls are added on top.
 struct Expression {
   std::map<std::string, float> controls;
   std::vector<float> coefficients;
+  bool coefficients_absolute = false;
 
   float Get(const std::string& name) const {
     auto it = controls.find(name);
     return it == controls.end() ? 0.0f : it->second;
   }
-  bool operator==(const Expression& o) const { return controls == o.controls && coefficients == o.coefficients; }
+  bool operator==(const Expression& o) const { return controls == o.controls && coefficients == o.coefficients && coefficients_absolute == o.coefficients_absolute;
+  }
 };
 
 // One render request.
