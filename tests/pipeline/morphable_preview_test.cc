@@ -8,6 +8,13 @@
 #include <cmath>
 #include <random>
 
+#include <unistd.h>
+
+#include <filesystem>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "core/pipeline/animate.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/util/error.h"
 #include "morphable/morphable_test_util.h"
@@ -149,6 +156,33 @@ TEST(MorphablePreview, BadRequestsAreClearErrors) {
   EXPECT_EQ(back.bgr.rows, 512);
   ctx.RequestCancel();
   EXPECT_THROW(source.Render(FrameRequest{}, ctx), Cancelled);
+}
+
+TEST(MorphablePreview, TurntablePngSequenceHasVaryingAlphaAtTheHeadsEdge) {
+  const MorphablePreviewSource source = SourceAt({});
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("avatar_orbit_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  AnimationPlan plan;
+  plan.view.mode = "orbit";
+  plan.view.orbit_degrees = 40;
+  plan.width = plan.height = 128;
+  plan.fps = 10;
+  plan.seconds = 0.4;
+  ExportOptions out;
+  out.output = (dir / "frames").string();
+  RunContext ctx;
+  EXPECT_EQ(ExportAnimation(source, nullptr, plan, out, ctx).frames, 4);
+  const cv::Mat a = cv::imread((dir / "frames" / "frame_000000.png").string(), cv::IMREAD_UNCHANGED);
+  const cv::Mat b = cv::imread((dir / "frames" / "frame_000001.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(a.type(), CV_8UC4);
+  std::vector<cv::Mat> ca, cb;
+  cv::split(a, ca);
+  cv::split(b, cb);
+  EXPECT_GT(cv::countNonZero((ca[3] > 0) & (ca[3] < 255)), 30) << "no soft edge in the alpha channel";
+  EXPECT_GT(cv::countNonZero(ca[3] == 255), 500);
+  EXPECT_GT(cv::norm(ca[3], cb[3], cv::NORM_L1), 1000.0) << "the turntable did not turn";
+  std::filesystem::remove_all(dir);
 }
 
 TEST(MorphableFrameAnalyzer, MeasuresPoseAndExpressionOrReportsNoFace) {
