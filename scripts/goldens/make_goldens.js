@@ -32,7 +32,7 @@ const MODELS = [
   {name: 'blazeface-front', input: 'input', range: [-1, 1], outputs: ['Identity', 'Identity_1', 'Identity_2', 'Identity_3']},
   {name: 'blazeface-back', input: 'input', range: [-1, 1], outputs: ['Identity', 'Identity_1', 'Identity_2', 'Identity_3']},
   {name: 'facemesh', input: 'input_1', range: [0, 1], outputs: ['Identity', 'Identity_1', 'Identity_2']},
-  {name: 'selfie', input: 'input_1', range: [0, 1], outputs: ['activation_10']},
+  {name: 'selfie', input: 'input_1', range: [0, 1], outputs: ['activation_10', 'segment_add']},
   {name: 'mobilefacenet', input: 'img_inputs', range: [0, 1], outputs: ['embeddings']},
 ];
 
@@ -75,7 +75,7 @@ function fixedInput(shape, range, seed) {
         const u = x / w, v = y / h;
         const cx = u - 0.5, cy = v - 0.45;
         const blob = Math.exp(-(cx * cx + cy * cy) / 0.06);
-        let t = 0.35 + 0.4 * blob + 0.12 * Math.sin(9 * u + 2 * k) * Math.cos(7 * v) + 0.1 * noise;
+        let t = 0.35 + 0.4 * blob + 0.12 * Math.sin(9 * u + 2 * k) * Math.cos(7 * v) + 0.03 * noise;
         t = Math.min(1, Math.max(0, t));
         data[(y * w + x) * c + k] = range[0] + (range[1] - range[0]) * t;
       }
