@@ -235,7 +235,9 @@ std::vector<float> FaceAnalyzer::Embedding(const cv::Mat& bgr, const Landmarks& 
   const std::vector<cv::Point2f> src = {RegionCentre(lm, mesh_index::RightEye()), RegionCentre(lm, mesh_index::LeftEye()),
                                         p2(mesh_index::kNoseTip), p2(mesh_index::kMouthRight), p2(mesh_index::kMouthLeft)};
   const cv::Matx23d m = SimilarityFromPoints(src, ArcFaceTemplate());
-  const torch::Tensor input = WarpToTensor(bgr, m, kEmbedInput, kEmbedInput, 0.0f, 1.0f);
+  // [1,112,112,3] RGB in [0,255]: measured on the sample photos, [0,1] input collapses every
+  // face onto one direction (cosine > 0.9999 between different people), 0..255 separates them.
+  const torch::Tensor input = WarpToTensor(bgr, m, kEmbedInput, kEmbedInput, 0.0f, 255.0f);
   torch::Tensor e = models_->identity->Run(input, {"embeddings"})[0].reshape({-1});
   e = e / e.norm().clamp_min(1e-12);
   e = e.contiguous();

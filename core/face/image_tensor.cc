@@ -1,5 +1,6 @@
 #include "core/face/image_tensor.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <opencv2/imgproc.hpp>
@@ -30,7 +31,8 @@ cv::Mat WarpImage(const cv::Mat& bgr, const cv::Matx23d& image_to_out, int out_w
     // Area-resize first so the bilinear warp samples a band-limited image.
     const double pre = std::min(1.0, 2.0 * scale);
     cv::Mat small;
-    cv::resize(bgr, small, cv::Size(), pre, pre, cv::INTER_AREA);
+    const cv::Size dsize(std::max(1, cvRound(bgr.cols * pre)), std::max(1, cvRound(bgr.rows * pre)));
+    cv::resize(bgr, small, dsize, 0, 0, cv::INTER_AREA);
     const double sx = static_cast<double>(small.cols) / bgr.cols;
     const double sy = static_cast<double>(small.rows) / bgr.rows;
     // Area resize maps pixel centres: small = (orig + 0.5) * s - 0.5, so

@@ -33,7 +33,7 @@ const MODELS = [
   {name: 'blazeface-back', input: 'input', range: [-1, 1], outputs: ['Identity', 'Identity_1', 'Identity_2', 'Identity_3']},
   {name: 'facemesh', input: 'input_1', range: [0, 1], outputs: ['Identity', 'Identity_1', 'Identity_2']},
   {name: 'selfie', input: 'input_1', range: [0, 1], outputs: ['activation_10', 'segment_add']},
-  {name: 'mobilefacenet', input: 'img_inputs', range: [0, 1], outputs: ['embeddings']},
+  {name: 'mobilefacenet', input: 'img_inputs', range: [0, 255], outputs: ['embeddings']},
 ];
 
 // Reads model.json and its shards from disk (no fetch in Node).
