@@ -428,6 +428,18 @@ void Session::ResetCounters() const {
   impl_->expression_images = 0;
 }
 
+AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path) {
+  const TensorArchive archive = ReadTensorArchive(path, "goha-avatar");
+  AvatarFileInfo info;
+  try {
+    info.model_id = archive.meta.at("model_id").get<std::string>();
+    info.config_name = archive.meta.at("config").at("name").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    throw ModelLoad(path.string() + ": avatar metadata is incomplete: " + e.what());
+  }
+  return info;
+}
+
 face::AlignedPortrait PortraitFromAlignedImage(const cv::Mat& bgr) {
   AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "portrait must be a non-empty 8-bit BGR image";
   face::AlignedPortrait p;

@@ -195,6 +195,14 @@ class Session {
   std::unique_ptr<Impl> impl_;
 };
 
+// Which model an avatar file was made with (from its metadata).
+struct AvatarFileInfo {
+  std::string model_id;     // as ModelInfo::model_id
+  std::string config_name;  // e.g. "lite"
+};
+// Throws Io (missing) or ModelLoad (not an avatar file, damaged).
+AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path);
+
 // BGR8 portrait -> AlignedPortrait-like input for callers that already have an aligned crop
 // (tests, tools): resized to 512, matte all ones, empty eye/mouth mask.
 face::AlignedPortrait PortraitFromAlignedImage(const cv::Mat& bgr);
