@@ -1,6 +1,7 @@
 #include "app/commands.h"
 
 #include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <iostream>
 
@@ -124,8 +125,9 @@ int Main(int argc, char** argv) {
       return kExitOk;
     }
     if (first == "--version") {
+      const char* wait_policy = std::getenv("OMP_WAIT_POLICY");
       std::cout << "avatar-studio " << kVersion << " (LibTorch " << TORCH_VERSION << ", OpenCV " << CV_VERSION
-                << ")\n";
+                << ", OpenMP wait policy " << (wait_policy != nullptr ? wait_policy : "default") << ")\n";
       return kExitOk;
     }
     if (first[0] != '-') {

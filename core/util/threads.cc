@@ -8,6 +8,8 @@
 #include <string>
 #include <thread>
 
+#include <unistd.h>
+
 #include "core/util/error.h"
 #include "core/util/logging.h"
 
@@ -37,5 +39,13 @@ int ConfigureThreads(int requested) {
 }
 
 int ConfiguredThreads() { return g_threads.load(); }
+
+void ReexecWithPassiveOpenMpWait(char** argv) {
+  if (std::getenv("OMP_WAIT_POLICY") != nullptr) return;
+  if (::setenv("OMP_WAIT_POLICY", "PASSIVE", /*overwrite=*/0) != 0) return;
+  ::execv("/proc/self/exe", argv);
+  // Only reached if execv failed: go on with the policy libgomp already chose.
+  AVATAR_LOG(kDebug) << "could not re-execute with OMP_WAIT_POLICY=PASSIVE; OpenMP threads spin-wait";
+}
 
 }  // namespace avatar

@@ -11,4 +11,14 @@ int ConfigureThreads(int requested = 0);
 // The count last applied by ConfigureThreads (0 if never called).
 int ConfiguredThreads();
 
+// OpenMP (libgomp, used by LibTorch and OpenBLAS) lets idle threads spin at barriers. When
+// other processes compete for the cores (a build, a second job, ctest -j2), a spinning thread
+// burns the time slice its partner needs: a render measured 35x slower that way, while with
+// passive waiting it ran at the expected speed. libgomp reads OMP_WAIT_POLICY once, when it is
+// loaded, so an executable that wants passive waiting must have it in its environment from
+// the start. Call this first thing in main(): unless the user set OMP_WAIT_POLICY, it sets it to
+// PASSIVE and re-executes the program (same arguments). Returns normally when the variable was
+// already set or re-execution failed (the program then runs with the default policy).
+void ReexecWithPassiveOpenMpWait(char** argv);
+
 }  // namespace avatar

@@ -35,6 +35,17 @@ TEST(Cli, VersionPrintsTheVersion) {
   EXPECT_NE(r.out.find("LibTorch"), std::string::npos);
 }
 
+TEST(Cli, StartsWithPassiveOpenMpWaitUnlessTheUserChoseAPolicy) {
+  // Spinning OpenMP threads make renders many times slower when the cores are shared
+  // (core/util/threads.h); the executable re-executes itself with passive waiting.
+  const auto unset = Studio("--version", "env -u OMP_WAIT_POLICY");
+  EXPECT_EQ(unset.exit_code, 0) << unset.err;
+  EXPECT_NE(unset.out.find("OpenMP wait policy PASSIVE"), std::string::npos) << unset.out;
+  const auto chosen = Studio("--version", "OMP_WAIT_POLICY=ACTIVE");
+  EXPECT_EQ(chosen.exit_code, 0) << chosen.err;
+  EXPECT_NE(chosen.out.find("OpenMP wait policy ACTIVE"), std::string::npos) << chosen.out;
+}
+
 TEST(Cli, UnknownCommandIsAUsageError) {
   const auto r = Studio("frobnicate");
   EXPECT_EQ(r.exit_code, 2);
