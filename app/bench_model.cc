@@ -229,7 +229,8 @@ void BenchRasterizer(int repeats, RunContext& ctx) {
   const torch::Tensor pts = (dir * 0.35 * (1 + 0.05 * torch::randn({n, 1}))).unsqueeze(0);
   const torch::Tensor feats = torch::randn({1, n, 256});
   const torch::Tensor mask = torch::ones({1, n}, torch::kBool);
-  const double kd = MedianSeconds(repeats, ctx, [&] { RasterizePointFeatures(pts, mask, feats, grid, 1.0); });
+  torch::InferenceMode inference;
+  const double kd = MedianSeconds(std::max(repeats, 5), ctx, [&] { RasterizePointFeatures(pts, mask, feats, grid, 1.0); });
   const torch::Tensor xy = pts[0].narrow(1, 0, 2) * 2.0;
   const double search = MedianSeconds(repeats, ctx, [&] { NearestPointIndices(xy, grid); });
   Timer brute_timer;
@@ -237,7 +238,7 @@ void BenchRasterizer(int repeats, RunContext& ctx) {
   const double brute_s = brute_timer.Seconds();
   const bool same = brute == NearestPointIndices(xy, grid);
   std::cout << "Rasterization of a " << grid << "x" << grid << "-point cloud (256 features) onto three " << grid << "x"
-            << grid << " grids: " << Fixed(kd * 1e3, 1) << " ms (target <= 50 ms); one plane's k-d tree search "
+            << grid << " grids, features gathered into [3,256,128,128]: " << Fixed(kd * 1e3, 1) << " ms (target <= 50 ms); one plane's k-d tree search "
             << Fixed(search * 1e3, 1) << " ms vs brute force " << Fixed(brute_s * 1e3, 0) << " ms ("
             << Fixed(brute_s / search, 0) << "x faster, identical indices: " << (same ? "yes" : "NO") << ").\n\n";
 }
@@ -250,7 +251,7 @@ int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
   const double gemm = MeasureGemmGflops();
   std::cout << "Model benchmark: " << threads << " threads, random weights, float32, inference mode, median of "
             << options.repeats << " runs after a warm-up.\nGEMM peak (fp32 1024^3, best of 5): " << Fixed(gemm, 1)
-            << " GFLOP/s\n\n";
+            << " GFLOP/s\n\n" << std::flush;
   std::cout << "Session (synthetic I_exp; times in s): full = reconstruct + frame with a new expression; "
                "camera-only and preview reuse every plane.\n\n"
             << "| config | first reconstruct + final frame | full recompute | new expression | camera-only frame | "
@@ -259,8 +260,13 @@ int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
   for (const auto& c : configs) BenchSession(c, options.repeats, ctx);
   std::cout << "\n";
   BenchRasterizer(options.repeats, ctx);
+  // The machine is shared: use the best GEMM rate seen in this run as the peak.
+  const double gemm_mid = MeasureGemmGflops();
+  const double peak = std::max(gemm, gemm_mid);
+  std::cout << "GEMM peak before the stage table: " << Fixed(gemm_mid, 1) << " GFLOP/s; ratios below use "
+            << Fixed(peak, 1) << " GFLOP/s (best of the run so far).\n\n";
   std::cout << "| config | stage | time (ms) | GFLOPs | GFLOP/s | of GEMM peak |\n|---|---|---|---|---|---|\n";
-  for (const auto& c : configs) BenchStages(c, options.repeats, gemm, ctx);
+  for (const auto& c : configs) BenchStages(c, options.repeats, peak, ctx);
   std::cout << "\nGEMM peak after the run: " << Fixed(MeasureGemmGflops(), 1)
             << " GFLOP/s. FLOPs are analytic (see `avatar-studio inspect`); render FLOPs count only the decoder MLP.\n";
   return kExitOk;

@@ -37,6 +37,9 @@ struct Cloud2d {
 class NearestWithTies {
  public:
   NearestWithTies(const Cloud2d& cloud, double qx, double qy) : cloud_(cloud), qx_(qx), qy_(qy) {}
+  // Starts from a known point (e.g. the neighbouring cell's answer): a tight bound from the
+  // first node on. Exactness is unaffected: any closer or tied smaller-index point still wins.
+  void Seed(uint32_t index) { addPoint(0.0, index); }
   size_t size() const { return best_ < 0 ? 0 : 1; }
   bool full() const { return best_ >= 0; }
   bool addPoint(double /*tree_dist*/, uint32_t index) {
@@ -85,11 +88,14 @@ std::vector<int64_t> NearestPointIndices(const torch::Tensor& points2d, int64_t 
   at::parallel_for(0, grid, 8, [&](int64_t begin, int64_t end) {
     for (int64_t row = begin; row < end; ++row) {
       const double qy = GridCoordinate(row, grid);
+      int64_t previous = -1;
       for (int64_t col = 0; col < grid; ++col) {
         const double query[2] = {GridCoordinate(col, grid), qy};
         NearestWithTies result(cloud, query[0], query[1]);
+        if (previous >= 0) result.Seed(static_cast<uint32_t>(previous));
         tree.findNeighbors(result, query, nanoflann::SearchParams(32, 0.0f, false));
-        nearest[static_cast<size_t>(row * grid + col)] = result.best();
+        previous = result.best();
+        nearest[static_cast<size_t>(row * grid + col)] = previous;
       }
     }
   });
@@ -131,6 +137,7 @@ torch::Tensor RasterizePointFeatures(const torch::Tensor& points, const torch::T
   const int64_t b = points.size(0), c = features.size(2);
   const torch::Tensor scaled = (points.detach() * (2.0 / box_warp)).to(torch::kCPU);  // [B,N,3]
   const torch::Tensor keep = mask.to(torch::kCPU, torch::kBool);
+  const bool track_grad = torch::GradMode::is_enabled() && features.requires_grad();
   std::vector<torch::Tensor> batch_planes;
   for (int64_t i = 0; i < b; ++i) {
     const torch::Tensor fg = torch::nonzero(keep[i]).flatten();  // [M] original point indices
@@ -140,18 +147,37 @@ torch::Tensor RasterizePointFeatures(const torch::Tensor& points, const torch::T
     }
     const torch::Tensor pts = scaled[i].index_select(0, fg);  // [M,3]
     const torch::Tensor fg_device = fg.to(features.device());
-    const torch::Tensor feats = features[i].index_select(0, fg_device);  // [M,C]
-    std::vector<torch::Tensor> planes;
+    // One search per plane, each parallel over grid rows inside.
+    std::vector<int64_t> idx[3];
     for (int p = 0; p < 3; ++p) {
       const torch::Tensor xy =
           torch::stack({pts.select(1, render::kPlaneAxes[p][0]), pts.select(1, render::kPlaneAxes[p][1])}, 1);
-      const std::vector<int64_t> idx = NearestPointIndices(xy, grid);
-      const torch::Tensor index = torch::tensor(idx, torch::kLong).to(features.device());  // [G*G]
-      planes.push_back(feats.index_select(0, index).t().reshape({c, grid, grid}));     // [C,G,G]
+      idx[p] = NearestPointIndices(xy, grid);
     }
-    batch_planes.push_back(torch::stack(planes, 0));  // [3,C,G,G]
+    if (track_grad) {
+      const torch::Tensor feats = features[i].index_select(0, fg_device);  // [M,C]
+      std::vector<torch::Tensor> planes;
+      for (int p = 0; p < 3; ++p) {
+        const torch::Tensor index = torch::tensor(idx[p], torch::kLong).to(features.device());  // [G*G]
+        planes.push_back(feats.index_select(0, index).t().reshape({c, grid, grid}));        // [C,G,G]
+      }
+      batch_planes.push_back(torch::stack(planes, 0));  // [3,C,G,G]
+    } else {
+      // No autograd: gather whole feature rows (contiguous copies of C floats) straight into a
+      // [3, G, G, C] buffer and return it as a channels-last view [3, C, G, G]: no transpose.
+      const torch::Tensor feats = features[i].contiguous();  // [N,C]
+      torch::Tensor out = torch::empty({3, grid * grid, c}, features.options());
+      for (int p = 0; p < 3; ++p) {
+        const torch::Tensor index =
+            fg_device.index_select(0, torch::tensor(idx[p], torch::kLong).to(features.device()));
+        torch::Tensor slice = out[p];  // [G*G,C], contiguous view
+        torch::index_select_out(slice, feats, 0, index);
+      }
+      batch_planes.push_back(out.view({3, grid, grid, c}).permute({0, 3, 1, 2}));  // [3,C,G,G] channels-last
+    }
   }
-  return torch::stack(batch_planes, 0);  // [B,3,C,G,G]
+  if (b == 1) return batch_planes[0].unsqueeze(0);  // keeps the channels-last strides
+  return torch::stack(batch_planes, 0);              // [B,3,C,G,G]
 }
 
 }  // namespace avatar

@@ -185,6 +185,20 @@ TEST(Rasterize, PlanesTakeFeaturesOfNearestForegroundPointsAndPassGradients) {
   EXPECT_NEAR(g.sum().item<float>(), 3.0 * grid * grid * c, 1e-3);
 }
 
+TEST(Rasterize, InferencePathEqualsAutogradPath) {
+  torch::manual_seed(7);
+  const torch::Tensor points = torch::rand({2, 300, 3}) - 0.5;
+  const torch::Tensor mask = torch::rand({2, 300}) > 0.4;
+  const torch::Tensor features = torch::randn({2, 300, 6});
+  const torch::Tensor with_grad = RasterizePointFeatures(points, mask, features.clone().requires_grad_(), 16, 1.0);
+  torch::Tensor fast;
+  {
+    torch::InferenceMode inference;
+    fast = RasterizePointFeatures(points, mask, features, 16, 1.0);
+  }
+  EXPECT_TRUE(torch::equal(with_grad.detach(), fast));
+}
+
 TEST(Rasterize, RejectsBadShapes) {
   EXPECT_THROW(RasterizePointFeatures(torch::zeros({1, 4, 2}), torch::ones({1, 4}, torch::kBool),
                                       torch::zeros({1, 4, 3}), 8, 1.0),
