@@ -12,6 +12,8 @@ namespace {
 struct GuiOptions {
   // Portrait to open at start.
   std::string open;
+  // Driving video to load at start.
+  std::string driver;
   // Without a display: where the headless equivalent writes the viewport image.
   std::string headless_output = "avatar-studio-view.png";
   // Threads, data folder, verbosity.
@@ -20,6 +22,7 @@ struct GuiOptions {
   template <typename V>
   void Visit(V&& v) {
     v("open", open, "Portrait to open at start");
+    v("driver", driver, "Driving video to load at start");
     v("headless_output", headless_output, "Without a display, where the viewport image is written");
     common.Visit(v);
   }
@@ -71,6 +74,7 @@ int RunGui(int argc, char** argv, const std::vector<std::string>& args) {
   ApplyCommon(options.common);
   ui::StudioOptions studio;
   studio.open = options.open;
+  studio.driver = options.driver;
   return ui::RunStudio(argc, argv, studio);
 }
 

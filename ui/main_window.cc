@@ -3,6 +3,7 @@
 #include <QAction>
 #include <QApplication>
 #include <QCloseEvent>
+#include <QDockWidget>
 #include <QDragEnterEvent>
 #include <QDropEvent>
 #include <QFileDialog>
@@ -12,27 +13,44 @@
 #include <QMenuBar>
 #include <QMessageBox>
 #include <QMimeData>
+#include <QProgressBar>
+#include <QPushButton>
+#include <QScrollArea>
 #include <QSettings>
+#include <QSlider>
 #include <QStatusBar>
+#include <QTimer>
+#include <QVBoxLayout>
 
 #include "core/io/image_io.h"
+#include "core/io/video_io.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "core/util/version.h"
+#include "ui/export_dialog.h"
 #include "ui/image_convert.h"
+#include "ui/job_runner.h"
+#include "ui/panels.h"
+#include "ui/preview_worker.h"
 #include "ui/viewport.h"
 
 namespace avatar::ui {
 namespace {
 
 constexpr int kMaxRecentFiles = 8;
+constexpr int kPreviewSize = 512;  // Viewport frames are rendered at this size.
 const char* const kRecentKey = "recentFiles";
 const char* const kGeometryKey = "mainWindow/geometry";
 const char* const kStateKey = "mainWindow/state";
+const QString kReconstructTitle = QStringLiteral("Reconstruct");
+const QString kExportTitle = QStringLiteral("Export");
 
 QString LocalFileFromMime(const QMimeData* mime) {
   if (mime == nullptr || !mime->hasUrls()) return {};
   for (const QUrl& url : mime->urls()) {
-    if (url.isLocalFile() && IsImageFile(url.toLocalFile())) return url.toLocalFile();
+    if (!url.isLocalFile()) continue;
+    const QString f = url.toLocalFile();
+    if (IsImageFile(f) || IsDriverVideoFile(f)) return f;
   }
   return {};
 }
@@ -44,53 +62,460 @@ bool IsImageFile(const QString& path) {
   return kExtensions.contains(QFileInfo(path).suffix().toLower());
 }
 
+bool IsDriverVideoFile(const QString& path) { return IsVideoPath(path.toStdString()); }
+
 MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
   setWindowTitle(QStringLiteral("Avatar Studio"));
   setAcceptDrops(true);
+  setDockOptions(QMainWindow::AnimatedDocks | QMainWindow::AllowTabbedDocks);
   viewport_ = new Viewport(this);
   setCentralWidget(viewport_);
-  status_label_ = new QLabel(tr("No portrait loaded"), this);
-  statusBar()->addWidget(status_label_, 1);
+  preview_ = new PreviewWorker(this);
+  jobs_ = new JobRunner(this);
+  play_timer_ = new QTimer(this);
+  createPanels();
+  createStatusBar();
   createMenus();
+
+  connect(preview_, &PreviewWorker::frameReady, this, &MainWindow::onFrame);
+  connect(preview_, &PreviewWorker::renderFailed, this,
+          [this](const QString& m) { status_label_->setText(tr("Render failed: %1").arg(m)); });
+  connect(preview_, &PreviewWorker::driverLoaded, this,
+          [this](const QString& path, qint64 frames, double fps, bool measured, bool has_audio) {
+            driving_panel_->setDriver(path, frames, fps, measured, has_audio);
+            status_label_->setText(tr("Driving video %1 loaded").arg(QFileInfo(path).fileName()));
+            emit driverLoaded(path);
+            requestPreview();
+          });
+  connect(preview_, &PreviewWorker::driverFailed, this, [this](const QString& path, const QString& message) {
+    showError(tr("Could not load the driving video"), message);
+    emit driverFailed(path, message);
+  });
+  connect(viewport_, &Viewport::orbitDragged, this, [this](double dyaw, double dpitch) {
+    ViewPose p = pose_panel_->pose();
+    p.yaw += dyaw;
+    p.pitch += dpitch;
+    pose_panel_->setPose(p);
+    requestPreview();
+  });
+  connect(viewport_, &Viewport::zoomWheeled, this, [this](double factor) {
+    ViewPose p = pose_panel_->pose();
+    p.zoom *= factor;
+    pose_panel_->setPose(p);
+    requestPreview();
+  });
+  connect(viewport_, &Viewport::resetRequested, this, [this] {
+    pose_panel_->setPose({});
+    requestPreview();
+  });
+  connect(jobs_, &JobRunner::started, this, &MainWindow::onJobStarted);
+  connect(jobs_, &JobRunner::progress, this, &MainWindow::onJobProgress);
+  connect(jobs_, &JobRunner::finished, this, [this](const QString& title) {
+    onJobEnded();
+    if (title == kReconstructTitle) {
+      setFrameSource(built_);
+      built_.reset();
+      status_label_->setText(tr("Reconstructed %1").arg(QFileInfo(portrait_path_).fileName()));
+      emit reconstructionFinished();
+    } else if (title == kExportTitle) {
+      status_label_->setText(tr("Exported %1 frames to %2").arg(export_frames_.load()).arg(export_output_));
+      emit exportFinished(export_output_, export_frames_.load());
+    }
+  });
+  connect(jobs_, &JobRunner::failed, this, [this](const QString& title, const QString& message) {
+    onJobEnded();
+    if (title == kReconstructTitle) {
+      showError(tr("Reconstruction failed"), message);
+      emit reconstructionFailed(message);
+    } else {
+      showError(tr("Export failed"), message);
+      emit exportFailed(message);
+    }
+  });
+  connect(jobs_, &JobRunner::cancelled, this, [this](const QString& title) {
+    onJobEnded();
+    status_label_->setText(tr("%1 cancelled").arg(title));
+    if (title == kExportTitle) emit exportCancelled();
+  });
+  connect(play_timer_, &QTimer::timeout, this, &MainWindow::playTick);
 
   QSettings settings;
   if (!restoreGeometry(settings.value(kGeometryKey).toByteArray())) resize(1280, 720);
   restoreState(settings.value(kStateKey).toByteArray());
+  preview_->setAnalyzerFactory(DrivingAnalyzers(backendOptions()));
 }
 
-MainWindow::~MainWindow() = default;
+MainWindow::~MainWindow() {
+  // The workers reference the window's state through queued calls: stop them first.
+  play_timer_->stop();
+  delete jobs_;
+  jobs_ = nullptr;
+  delete preview_;
+  preview_ = nullptr;
+}
+
+void MainWindow::createPanels() {
+  source_panel_ = new SourcePanel(this);
+  auto* source_dock = new QDockWidget(tr("Source"), this);
+  source_dock->setObjectName(QStringLiteral("sourceDock"));
+  source_dock->setWidget(source_panel_);
+  source_dock->setFeatures(QDockWidget::DockWidgetMovable | QDockWidget::DockWidgetFloatable);
+  addDockWidget(Qt::LeftDockWidgetArea, source_dock);
+  connect(source_panel_, &SourcePanel::reconstructRequested, this, &MainWindow::reconstruct);
+  connect(source_panel_, &SourcePanel::presetChanged, this,
+          [this](const QString& preset) { preset_label_->setText(tr("Preset: %1").arg(preset)); });
+
+  auto* controls = new QWidget(this);
+  auto* layout = new QVBoxLayout(controls);
+  pose_panel_ = new PosePanel(controls);
+  expression_panel_ = new ExpressionPanel(controls);
+  auto* pose_title = new QLabel(tr("<b>Pose</b>"), controls);
+  auto* expr_title = new QLabel(tr("<b>Expression</b>"), controls);
+  layout->addWidget(pose_title);
+  layout->addWidget(pose_panel_);
+  layout->addWidget(expr_title);
+  layout->addWidget(expression_panel_);
+  layout->addStretch(1);
+  auto* scroll = new QScrollArea(this);
+  scroll->setWidget(controls);
+  scroll->setWidgetResizable(true);
+  scroll->setMinimumWidth(300);
+  auto* controls_dock = new QDockWidget(tr("Pose and Expression"), this);
+  controls_dock->setObjectName(QStringLiteral("controlsDock"));
+  controls_dock->setWidget(scroll);
+  controls_dock->setFeatures(QDockWidget::DockWidgetMovable | QDockWidget::DockWidgetFloatable);
+  addDockWidget(Qt::RightDockWidgetArea, controls_dock);
+  connect(pose_panel_, &PosePanel::poseChanged, this, [this] { requestPreview(); });
+  connect(expression_panel_, &ExpressionPanel::expressionChanged, this, [this] { requestPreview(); });
+  connect(expression_panel_, &ExpressionPanel::saveRequested, this, &MainWindow::saveExpressionPreset);
+  connect(expression_panel_, &ExpressionPanel::loadRequested, this, &MainWindow::loadExpressionPreset);
+
+  driving_panel_ = new DrivingPanel(this);
+  auto* driving_dock = new QDockWidget(tr("Driving"), this);
+  driving_dock->setObjectName(QStringLiteral("drivingDock"));
+  driving_dock->setWidget(driving_panel_);
+  driving_dock->setFeatures(QDockWidget::DockWidgetMovable | QDockWidget::DockWidgetFloatable);
+  addDockWidget(Qt::BottomDockWidgetArea, driving_dock);
+  connect(driving_panel_, &DrivingPanel::loadRequested, this, &MainWindow::showOpenDriverDialog);
+  connect(driving_panel_, &DrivingPanel::unloadRequested, this, [this] {
+    preview_->unloadDriver();
+    driving_panel_->clearDriver();
+    requestPreview();
+  });
+  connect(driving_panel_, &DrivingPanel::frameChanged, this, [this] { requestPreview(); });
+  connect(driving_panel_, &DrivingPanel::followPoseChanged, this, [this] { requestPreview(); });
+  connect(driving_panel_, &DrivingPanel::optionsChanged, this, [this](const DrivingOptions& o) {
+    preview_->setDrivingOptions(o);
+    requestPreview();
+  });
+  connect(driving_panel_, &DrivingPanel::playingChanged, this, [this](bool playing) {
+    if (playing) {
+      play_timer_->start(static_cast<int>(1000.0 / std::max(1.0, driving_panel_->fps())));
+    } else {
+      play_timer_->stop();
+    }
+  });
+}
+
+void MainWindow::createStatusBar() {
+  status_label_ = new QLabel(tr("No portrait loaded"), this);
+  status_label_->setToolTip(tr("What the studio is doing"));
+  statusBar()->addWidget(status_label_, 1);
+  stage_label_ = new QLabel(this);
+  stage_label_->setToolTip(tr("Stage of the running job"));
+  statusBar()->addPermanentWidget(stage_label_);
+  progress_ = new QProgressBar(this);
+  progress_->setRange(0, 1000);
+  progress_->setMaximumWidth(180);
+  progress_->setToolTip(tr("Progress of the running job"));
+  progress_->setVisible(false);
+  statusBar()->addPermanentWidget(progress_);
+  cancel_button_ = new QPushButton(tr("Cancel"), this);
+  cancel_button_->setToolTip(tr("Cancel the running job (Esc)"));
+  cancel_button_->setVisible(false);
+  connect(cancel_button_, &QPushButton::clicked, this, &MainWindow::cancelJob);
+  statusBar()->addPermanentWidget(cancel_button_);
+  frame_time_label_ = new QLabel(tr("Frame: -"), this);
+  frame_time_label_->setToolTip(tr("Render time of the last viewport frame"));
+  statusBar()->addPermanentWidget(frame_time_label_);
+  preset_label_ = new QLabel(tr("Preset: %1").arg(source_panel_->preset()), this);
+  preset_label_->setToolTip(tr("Network preset (choose it in the source panel)"));
+  statusBar()->addPermanentWidget(preset_label_);
+}
 
 void MainWindow::createMenus() {
   QMenu* file = menuBar()->addMenu(tr("&File"));
   QAction* open = file->addAction(tr("&Open Portrait..."), this, &MainWindow::showOpenDialog);
   open->setShortcut(QKeySequence::Open);
   open->setToolTip(tr("Open a portrait photo (JPEG, PNG, ...)"));
+  QAction* driver = file->addAction(tr("Open &Driving Video..."), this, &MainWindow::showOpenDriverDialog);
+  driver->setShortcut(QKeySequence(Qt::CTRL | Qt::SHIFT | Qt::Key_O));
+  driver->setToolTip(tr("Load a video whose expressions and head motion drive the avatar"));
   recent_menu_ = file->addMenu(tr("Open &Recent"));
   rebuildRecentMenu();
+  file->addSeparator();
+  export_action_ = file->addAction(tr("&Export Animation..."), this, &MainWindow::showExportDialog);
+  export_action_->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_E));
+  export_action_->setToolTip(tr("Export an MP4 or a PNG sequence with alpha"));
+  export_action_->setEnabled(false);
   file->addSeparator();
   QAction* quit = file->addAction(tr("&Quit"), this, &QWidget::close);
   quit->setShortcut(QKeySequence::Quit);
 
+  QMenu* avatar = menuBar()->addMenu(tr("&Avatar"));
+  reconstruct_action_ = avatar->addAction(tr("&Reconstruct"), this, &MainWindow::reconstruct);
+  reconstruct_action_->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_R));
+  reconstruct_action_->setEnabled(false);
+  cancel_action_ = avatar->addAction(tr("&Cancel Job"), this, &MainWindow::cancelJob);
+  cancel_action_->setShortcut(QKeySequence(Qt::Key_Escape));
+  cancel_action_->setEnabled(false);
+  avatar->addSeparator();
+  QAction* neutral = avatar->addAction(tr("&Neutral Expression"), expression_panel_, &ExpressionPanel::resetToNeutral);
+  neutral->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_N));
+
+  QMenu* view = menuBar()->addMenu(tr("&View"));
+  QAction* reset = view->addAction(tr("&Reset View"), this, [this] {
+    pose_panel_->setPose({});
+    requestPreview();
+  });
+  reset->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_0));
+  QSettings settings;
+  show_landmarks_ = view->addAction(tr("Show &Landmarks"));
+  show_landmarks_->setCheckable(true);
+  show_landmarks_->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_L));
+  show_landmarks_->setChecked(settings.value("view/landmarks", false).toBool());
+  show_mesh_ = view->addAction(tr("Show &Mesh"));
+  show_mesh_->setCheckable(true);
+  show_mesh_->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_M));
+  show_mesh_->setChecked(settings.value("view/mesh", false).toBool());
+  viewport_->setShowLandmarks(show_landmarks_->isChecked());
+  viewport_->setShowMesh(show_mesh_->isChecked());
+  connect(show_landmarks_, &QAction::toggled, this, [this](bool on) {
+    viewport_->setShowLandmarks(on);
+    QSettings().setValue("view/landmarks", on);
+  });
+  connect(show_mesh_, &QAction::toggled, this, [this](bool on) {
+    viewport_->setShowMesh(on);
+    QSettings().setValue("view/mesh", on);
+  });
+
+  QMenu* drive = menuBar()->addMenu(tr("&Driving"));
+  QAction* play = drive->addAction(tr("&Play / Pause"), this,
+                                   [this] { driving_panel_->setPlaying(!driving_panel_->isPlaying()); });
+  play->setShortcut(QKeySequence(Qt::Key_Space));
+  QAction* back = drive->addAction(tr("Step &Back"), this, [this] { stepDriver(-1); });
+  back->setShortcut(QKeySequence(Qt::Key_BracketLeft));
+  QAction* forward = drive->addAction(tr("Step &Forward"), this, [this] { stepDriver(1); });
+  forward->setShortcut(QKeySequence(Qt::Key_BracketRight));
+
   QMenu* help = menuBar()->addMenu(tr("&Help"));
   help->addAction(tr("&About Avatar Studio"), this, &MainWindow::showAbout);
+  for (QMenu* m : {file, avatar, view, drive, help}) m->setToolTipsVisible(true);
 }
 
-bool MainWindow::openPortrait(const QString& path) {
+BackendOptions MainWindow::backendOptions() const {
+  BackendOptions o;
+  o.preset = source_panel_->preset().toStdString();
+  o.random_weights = source_panel_->randomWeights();
+  return o;
+}
+
+void MainWindow::showError(const QString& title, const QString& message) {
+  last_error_ = message;
+  status_label_->setText(tr("%1: %2").arg(title, message));
+  if (dialogs_enabled_) QMessageBox::warning(this, title, message);
+}
+
+bool MainWindow::openPortrait(const QString& path, bool reconstruct_now) {
   try {
     const cv::Mat bgr = LoadImageBgr(path.toStdString());
-    viewport_->setImage(ToQImage(bgr));
+    portrait_ = bgr;
+    portrait_path_ = path;
     last_error_.clear();
     status_label_->setText(tr("%1  (%2 x %3)").arg(QFileInfo(path).fileName()).arg(bgr.cols).arg(bgr.rows));
     setWindowTitle(tr("%1 - Avatar Studio").arg(QFileInfo(path).fileName()));
     addRecentFile(QFileInfo(path).absoluteFilePath());
+    source_panel_->setPortrait(ToQImage(bgr), {});
+    reconstruct_action_->setEnabled(true);
+    // Until reconstruction finishes the viewport shows the photo itself, labelled so.
+    setFrameSource(std::make_shared<PortraitFrameSource>(bgr));
     emit portraitLoaded(path);
+    if (reconstruct_now) reconstruct();
     return true;
   } catch (const std::exception& e) {
-    last_error_ = QString::fromStdString(e.what());
     status_label_->setText(tr("Could not open %1").arg(QFileInfo(path).fileName()));
-    if (dialogs_enabled_) QMessageBox::warning(this, tr("Could not open the portrait"), last_error_);
+    showError(tr("Could not open the portrait"), QString::fromStdString(e.what()));
     emit portraitFailed(path, last_error_);
     return false;
+  }
+}
+
+bool MainWindow::reconstruct() {
+  if (portrait_.empty() || jobs_->isBusy()) return false;
+  const cv::Mat portrait = portrait_;
+  const BackendOptions backend = backendOptions();
+  preview_->setAnalyzerFactory(DrivingAnalyzers(backend));
+  built_.reset();
+  return jobs_->start(kReconstructTitle, [this, portrait, backend](RunContext& ctx) {
+    // Runs on the job thread; built_ is read on the GUI thread only after `finished`.
+    built_ = CreateFrameSource(portrait, backend, ctx);
+  });
+}
+
+void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
+  source_ = std::move(source);
+  preview_->setSource(source_);
+  if (source_) {
+    expression_panel_->setSupported(source_->ExpressionControls());
+    viewport_->setLabel(QString::fromStdString(source_->Label()));
+    source_panel_->setStatus(QString::fromStdString(source_->Label()));
+    if (!portrait_.empty()) source_panel_->setPortrait(ToQImage(portrait_), source_->Overlay());
+  }
+  export_action_->setEnabled(source_ != nullptr);
+  requestPreview();
+}
+
+void MainWindow::requestPreview() {
+  if (!source_) return;
+  PreviewRequest r;
+  r.frame.view = pose_panel_->pose();
+  const ViewPose base = source_->SourcePose();
+  r.frame.view.yaw += base.yaw;
+  r.frame.view.pitch += base.pitch;
+  r.frame.view.roll += base.roll;
+  r.frame.expression = expression_panel_->expression();
+  r.frame.width = kPreviewSize;
+  r.frame.height = kPreviewSize;
+  if (driving_panel_->hasDriver()) {
+    r.driver_frame = driving_panel_->currentFrame();
+    r.driver_pose = driving_panel_->followPose();
+  }
+  last_request_ = preview_->request(r);
+}
+
+void MainWindow::onFrame(const PreviewFrame& frame) {
+  last_frame_ = frame.image;
+  last_alpha_ = frame.alpha;
+  last_shown_ = frame.serial;
+  last_driver_frame_ = frame.driver_frame;
+  viewport_->setImage(frame.image);
+  viewport_->setOverlay(frame.landmarks, frame.vertices, frame.triangles);
+  frame_time_label_->setText(tr("Frame: %1 ms").arg(frame.milliseconds, 0, 'f', 1));
+  if (frame.driver_frame >= 0) driving_panel_->setDriverImage(frame.driver_image, frame.driver_face_found);
+  emit frameShown(frame.serial);
+}
+
+void MainWindow::playTick() {
+  if (!driving_panel_->hasDriver()) return;
+  // Advance only once the previous frame is on screen, so playback stays sequential (the
+  // smoothing needs it) and slows down instead of piling up requests.
+  if (last_shown_ < last_request_) return;
+  int next = driving_panel_->currentFrame() + 1;
+  if (next >= driving_panel_->frameCount()) next = 0;
+  driving_panel_->setCurrentFrame(next);
+}
+
+void MainWindow::stepDriver(int delta) {
+  if (!driving_panel_->hasDriver()) return;
+  driving_panel_->setPlaying(false);
+  const int n = static_cast<int>(driving_panel_->frameCount());
+  driving_panel_->setCurrentFrame(std::clamp(driving_panel_->currentFrame() + delta, 0, n - 1));
+}
+
+void MainWindow::openDriver(const QString& path) {
+  driving_panel_->setPlaying(false);
+  preview_->loadDriver(path, driving_panel_->options());
+}
+
+bool MainWindow::startExport(const ExportOptions& output, const AnimationPlan& plan_in) {
+  if (!source_) {
+    showError(tr("Cannot export"), tr("Open a portrait first (File > Open)."));
+    return false;
+  }
+  if (jobs_->isBusy()) {
+    showError(tr("Cannot export"), tr("Another job is running; wait for it or cancel it (Esc)."));
+    return false;
+  }
+  driving_panel_->setPlaying(false);
+  AnimationPlan plan = plan_in;
+  plan.base_expression = expression_panel_->expression();
+  plan.view.zoom = pose_panel_->pose().zoom;
+  const std::shared_ptr<const FrameSource> source = source_;
+  const QString driver_path = driving_panel_->driverPath();
+  const DrivingOptions driving = driving_panel_->options();
+  const BackendOptions backend = backendOptions();
+  export_output_ = QString::fromStdString(output.output);
+  export_frames_ = 0;
+  return jobs_->start(kExportTitle, [this, source, driver_path, driving, backend, plan, output](RunContext& ctx) {
+    std::unique_ptr<Driver> driver;
+    if (!driver_path.isEmpty()) driver = OpenDriver(driver_path.toStdString(), DrivingAnalyzers(backend), driving, ctx);
+    const ExportStats stats = ExportAnimation(*source, driver.get(), plan, output, ctx);
+    export_frames_ = stats.frames;
+  });
+}
+
+void MainWindow::showExportDialog() {
+  if (!source_) return;
+  ExportDialog dialog(driving_panel_->hasDriver(), source_panel_->preset(), this);
+  if (dialog.exec() != QDialog::Accepted) return;
+  startExport(dialog.exportOptions(), dialog.plan());
+}
+
+void MainWindow::cancelJob() {
+  if (!jobs_->isBusy()) return;
+  stage_label_->setText(tr("cancelling..."));
+  jobs_->cancel();
+}
+
+void MainWindow::onJobStarted(const QString& title) {
+  progress_->setValue(0);
+  progress_->setVisible(true);
+  cancel_button_->setVisible(true);
+  cancel_action_->setEnabled(true);
+  stage_label_->setText(title);
+  source_panel_->reconstructButton()->setEnabled(false);
+  reconstruct_action_->setEnabled(false);
+  export_action_->setEnabled(false);
+}
+
+void MainWindow::onJobProgress(const QString& stage, double fraction, const QString& message) {
+  progress_->setValue(static_cast<int>(fraction * 1000.0));
+  stage_label_->setText(message.isEmpty() ? stage : tr("%1: %2").arg(stage, message));
+}
+
+void MainWindow::onJobEnded() {
+  progress_->setVisible(false);
+  cancel_button_->setVisible(false);
+  cancel_action_->setEnabled(false);
+  stage_label_->clear();
+  source_panel_->reconstructButton()->setEnabled(!portrait_.empty());
+  reconstruct_action_->setEnabled(!portrait_.empty());
+  export_action_->setEnabled(source_ != nullptr);
+}
+
+void MainWindow::saveExpressionPreset() {
+  const QString path = QFileDialog::getSaveFileName(this, tr("Save Expression Preset"),
+                                                    QSettings().value("expression/lastPreset").toString(),
+                                                    tr("Expression presets (*.json)"));
+  if (path.isEmpty()) return;
+  try {
+    expression_panel_->savePreset(path);
+    QSettings().setValue("expression/lastPreset", path);
+  } catch (const std::exception& e) {
+    showError(tr("Could not save the preset"), QString::fromStdString(e.what()));
+  }
+}
+
+void MainWindow::loadExpressionPreset() {
+  const QString path = QFileDialog::getOpenFileName(this, tr("Load Expression Preset"),
+                                                    QSettings().value("expression/lastPreset").toString(),
+                                                    tr("Expression presets (*.json)"));
+  if (path.isEmpty()) return;
+  try {
+    expression_panel_->loadPreset(path);
+    QSettings().setValue("expression/lastPreset", path);
+  } catch (const std::exception& e) {
+    showError(tr("Could not load the preset"), QString::fromStdString(e.what()));
   }
 }
 
@@ -102,7 +527,11 @@ void MainWindow::dropEvent(QDropEvent* event) {
   const QString path = LocalFileFromMime(event->mimeData());
   if (path.isEmpty()) return;
   event->acceptProposedAction();
-  openPortrait(path);
+  if (IsDriverVideoFile(path)) {
+    openDriver(path);
+  } else {
+    openPortrait(path);
+  }
 }
 
 void MainWindow::closeEvent(QCloseEvent* event) {
@@ -138,10 +567,21 @@ void MainWindow::showOpenDialog() {
   if (!path.isEmpty()) openPortrait(path);
 }
 
+void MainWindow::showOpenDriverDialog() {
+  const QString path = QFileDialog::getOpenFileName(this, tr("Open Driving Video"),
+                                                    QSettings().value("driving/lastFolder").toString(),
+                                                    tr("Videos (*.mp4 *.mov *.avi *.mkv *.webm *.m4v)"));
+  if (path.isEmpty()) return;
+  QSettings().setValue("driving/lastFolder", QFileInfo(path).absolutePath());
+  openDriver(path);
+}
+
 void MainWindow::showAbout() {
   QMessageBox::about(this, tr("About Avatar Studio"),
                      tr("<b>Avatar Studio %1</b><p>Turns one portrait photo into an animatable 3D head avatar "
-                        "(Generalizable One-shot Neural Head Avatar, NeurIPS 2023).</p>")
+                        "(Generalizable One-shot Neural Head Avatar, NeurIPS 2023).</p>"
+                        "<p>The neural model is not trained yet: the viewport shows what really renders today, "
+                        "and says so.</p>")
                          .arg(QString::fromLatin1(kVersion)));
 }
 

@@ -1,15 +1,40 @@
 #pragma once
-// The studio's main window: menus, the viewport, a status bar, drag and drop of portraits,
-// recent files and window geometry kept in QSettings.
+// The studio's main window: the viewport in the middle; the source panel (portrait
+// thumbnail with detection/landmarks, preset, Reconstruct) on the left; pose and expression
+// panels on the right; the driving panel (video, play/pause, timeline, neutral frame,
+// transfer mode, smoothing) at the bottom; a status bar with the last frame time, the preset
+// and the progress/cancel of the running job. Drag and drop: an image loads and reconstructs,
+// a video becomes the driver. Long jobs (reconstruction, export) run on the JobRunner; the
+// viewport renders on the PreviewWorker. Settings persist in QSettings.
 
+#include <QImage>
 #include <QMainWindow>
 #include <QStringList>
 
-class QMenu;
+#include <atomic>
+#include <memory>
+
+#include <opencv2/core.hpp>
+
+#include "core/pipeline/animate.h"
+#include "core/pipeline/frame_source.h"
+
+class QAction;
 class QLabel;
+class QMenu;
+class QProgressBar;
+class QPushButton;
+class QTimer;
 
 namespace avatar::ui {
 
+class DrivingPanel;
+class ExpressionPanel;
+class JobRunner;
+class PosePanel;
+class PreviewWorker;
+struct PreviewFrame;
+class SourcePanel;
 class Viewport;
 
 class MainWindow : public QMainWindow {
@@ -19,23 +44,55 @@ class MainWindow : public QMainWindow {
   explicit MainWindow(QWidget* parent = nullptr);
   ~MainWindow() override;
 
-  // Loads a portrait through the core's image loader and shows it. This is the single path
-  // used by File > Open, recent files, drag and drop and the --open flag. On failure the
-  // error is shown (a dialog when dialogs are enabled, always in the status bar) and false
-  // is returned.
-  bool openPortrait(const QString& path);
+  // Loads a portrait through the core's image loader, shows it, and (when `reconstruct`)
+  // starts reconstruction. The single path of File > Open, recent files, drag and drop and
+  // --open. On failure the error is shown (a dialog when dialogs are enabled, always in the
+  // status bar) and false is returned.
+  bool openPortrait(const QString& path, bool reconstruct = true);
+  // Starts reconstruction of the loaded portrait on the job worker (false if busy/none).
+  bool reconstruct();
+  // Loads a driving video (decoded and analysed on the preview worker).
+  void openDriver(const QString& path);
+  // Starts an export of the current avatar with the loaded driver (if any).
+  bool startExport(const ExportOptions& output, const AnimationPlan& plan);
+  // Asks for export settings, then starts the export.
+  void showExportDialog();
+  // Cancels the running job (reconstruction or export).
+  void cancelJob();
 
   // Dialogs are on by default; tests switch them off so nothing blocks.
   void setDialogsEnabled(bool enabled) { dialogs_enabled_ = enabled; }
 
   Viewport* viewport() const { return viewport_; }
+  SourcePanel* sourcePanel() const { return source_panel_; }
+  PosePanel* posePanel() const { return pose_panel_; }
+  ExpressionPanel* expressionPanel() const { return expression_panel_; }
+  DrivingPanel* drivingPanel() const { return driving_panel_; }
+  PreviewWorker* previewWorker() const { return preview_; }
+  JobRunner* jobRunner() const { return jobs_; }
   QStringList recentFiles() const;
-  // The message of the last failed open ("" after a success).
+  // The message of the last error ("" after a success).
   QString lastError() const { return last_error_; }
+  // The frame source the viewport renders (null before a portrait is loaded).
+  std::shared_ptr<const FrameSource> frameSource() const { return source_; }
+  // The last frame shown in the viewport.
+  const QImage& lastFrame() const { return last_frame_; }
+  const QImage& lastAlpha() const { return last_alpha_; }
+  // Driver frame index of the last frame shown (-1 without a driver).
+  qint64 lastDriverFrame() const { return last_driver_frame_; }
 
  signals:
   void portraitLoaded(const QString& path);
   void portraitFailed(const QString& path, const QString& message);
+  void reconstructionFinished();
+  void reconstructionFailed(const QString& message);
+  void driverLoaded(const QString& path);
+  void driverFailed(const QString& path, const QString& message);
+  // A viewport frame was shown (answering request `serial`).
+  void frameShown(quint64 serial);
+  void exportFinished(const QString& path, qint64 frames);
+  void exportFailed(const QString& message);
+  void exportCancelled();
 
  protected:
   void dragEnterEvent(QDragEnterEvent* event) override;
@@ -43,20 +100,66 @@ class MainWindow : public QMainWindow {
   void closeEvent(QCloseEvent* event) override;
 
  private:
+  void createPanels();
   void createMenus();
+  void createStatusBar();
   void rebuildRecentMenu();
   void addRecentFile(const QString& path);
   void showOpenDialog();
+  void showOpenDriverDialog();
   void showAbout();
+  void showError(const QString& title, const QString& message);
+  void setFrameSource(std::shared_ptr<const FrameSource> source);
+  void requestPreview();
+  void onFrame(const PreviewFrame& frame);
+  void onJobStarted(const QString& title);
+  void onJobProgress(const QString& stage, double fraction, const QString& message);
+  void onJobEnded();
+  void playTick();
+  void stepDriver(int delta);
+  void saveExpressionPreset();
+  void loadExpressionPreset();
+  BackendOptions backendOptions() const;
 
   Viewport* viewport_ = nullptr;
+  SourcePanel* source_panel_ = nullptr;
+  PosePanel* pose_panel_ = nullptr;
+  ExpressionPanel* expression_panel_ = nullptr;
+  DrivingPanel* driving_panel_ = nullptr;
+  PreviewWorker* preview_ = nullptr;
+  JobRunner* jobs_ = nullptr;
+  QTimer* play_timer_ = nullptr;
   QMenu* recent_menu_ = nullptr;
   QLabel* status_label_ = nullptr;
+  QLabel* frame_time_label_ = nullptr;
+  QLabel* preset_label_ = nullptr;
+  QLabel* stage_label_ = nullptr;
+  QProgressBar* progress_ = nullptr;
+  QPushButton* cancel_button_ = nullptr;
+  QAction* show_landmarks_ = nullptr;
+  QAction* show_mesh_ = nullptr;
+  QAction* export_action_ = nullptr;
+  QAction* reconstruct_action_ = nullptr;
+  QAction* cancel_action_ = nullptr;
+
+  QString portrait_path_;
+  cv::Mat portrait_;                           // BGR8 of the loaded portrait.
+  std::shared_ptr<const FrameSource> source_;  // What the viewport renders.
+  std::shared_ptr<const FrameSource> built_;   // Written by the reconstruction job.
+  QString export_output_;
+  std::atomic<qint64> export_frames_{0};      // Written by the export job.
+  quint64 last_request_ = 0;
+  quint64 last_shown_ = 0;
+  QImage last_frame_;
+  QImage last_alpha_;
+  qint64 last_driver_frame_ = -1;
   QString last_error_;
   bool dialogs_enabled_ = true;
 };
 
 // True if the file name looks like an image the studio opens (by extension).
 bool IsImageFile(const QString& path);
+// True if the file name looks like a driving video (by extension).
+bool IsDriverVideoFile(const QString& path);
 
 }  // namespace avatar::ui

@@ -24,6 +24,10 @@ int RunStudio(int& argc, char** argv, const StudioOptions& options) {
     const QString path = QString::fromStdString(options.open);
     QTimer::singleShot(0, &window, [&window, path] { window.openPortrait(path); });
   }
+  if (!options.driver.empty()) {
+    const QString path = QString::fromStdString(options.driver);
+    QTimer::singleShot(0, &window, [&window, path] { window.openDriver(path); });
+  }
   return app.exec();
 }
 

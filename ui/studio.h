@@ -8,6 +8,8 @@ namespace avatar::ui {
 struct StudioOptions {
   // Portrait to open at start ("" = start empty).
   std::string open;
+  // Driving video to load at start ("" = none).
+  std::string driver;
 };
 
 // Creates the QApplication and the main window and runs the event loop; returns its exit code.

@@ -58,9 +58,12 @@ class MainWindowTest : public QObject {
     QVERIFY(QTest::qWaitForWindowExposed(&window));
 
     QSignalSpy loaded(&window, &MainWindow::portraitLoaded);
+    QSignalSpy shown(&window, &MainWindow::frameShown);
     DropFile(&window, portrait);
     QCOMPARE(loaded.count(), 1);
     QVERIFY2(window.lastError().isEmpty(), qPrintable(window.lastError()));
+    // The first frame is rendered on the preview worker from the photo itself.
+    QVERIFY(shown.wait(20000));
     QTest::qWait(200);
 
     // Grab what the X server shows for the window: the real on-screen pixels, including
@@ -75,8 +78,11 @@ class MainWindowTest : public QObject {
     QVERIFY(shot.rect().contains(vp_rect));
     const cv::Mat grabbed = ToMat(shot.copy(vp_rect));
 
-    // What the viewport should show: the portrait letterboxed by the core's rule.
-    const cv::Mat expected = LetterboxImage(LoadImageBgr(portrait.toStdString()), vp->width(), vp->height());
+    // What the viewport should show: the rendered frame (the portrait letterboxed into a
+    // square by the core's rule) letterboxed into the viewport by the same rule.
+    const cv::Mat frame = ToMat(vp->image());
+    const cv::Mat square = LetterboxImage(LoadImageBgr(portrait.toStdString()), frame.cols, frame.rows);
+    const cv::Mat expected = LetterboxImage(square, vp->width(), vp->height());
     QCOMPARE(grabbed.size(), expected.size());
 
     const QRect ir = vp->imageRect();
@@ -115,12 +121,16 @@ class MainWindowTest : public QObject {
     window.setDialogsEnabled(false);
     window.show();
     QVERIFY(QTest::qWaitForWindowExposed(&window));
-    QVERIFY(window.openPortrait(good));
+    QSignalSpy shown(&window, &MainWindow::frameShown);
+    QVERIFY(window.openPortrait(good, false));
+    QVERIFY(shown.wait(20000));
     QSignalSpy failed(&window, &MainWindow::portraitFailed);
     DropFile(&window, bad);
     QCOMPARE(failed.count(), 1);
     QVERIFY(window.lastError().contains(QStringLiteral("broken.jpg")));
-    QCOMPARE(window.viewport()->image().pixelColor(5, 5), QColor(255, 0, 0));
+    // The viewport still shows the red square (centre of the rendered frame).
+    const QImage& img = window.viewport()->image();
+    QCOMPARE(img.pixelColor(img.width() / 2, img.height() / 2), QColor(255, 0, 0));
   }
 
   void nonImageDropsAreRefused() {

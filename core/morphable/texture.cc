@@ -1,0 +1,170 @@
+#include "core/morphable/texture.h"
+
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "core/morphable/rasterizer.h"
+#include "core/util/error.h"
+
+namespace avatar::morphable {
+
+namespace {
+
+cv::Vec3f SampleBilinear(const cv::Mat& bgr8, double x, double y) {
+  // Pixel i's centre is at i + 0.5.
+  const double fx = std::clamp(x - 0.5, 0.0, bgr8.cols - 1.0);
+  const double fy = std::clamp(y - 0.5, 0.0, bgr8.rows - 1.0);
+  const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
+  const int x1 = std::min(x0 + 1, bgr8.cols - 1), y1 = std::min(y0 + 1, bgr8.rows - 1);
+  const double ax = fx - x0, ay = fy - y0;
+  cv::Vec3f out;
+  for (int c = 0; c < 3; ++c) {
+    const double v = (1 - ay) * ((1 - ax) * bgr8.at<cv::Vec3b>(y0, x0)[c] + ax * bgr8.at<cv::Vec3b>(y0, x1)[c]) +
+                     ay * ((1 - ax) * bgr8.at<cv::Vec3b>(y1, x0)[c] + ax * bgr8.at<cv::Vec3b>(y1, x1)[c]);
+    out[c] = static_cast<float>(v / 255.0);
+  }
+  return out;
+}
+
+// Fills unknown texels from known ones by a push-pull pyramid (smooth, no extra dependency).
+cv::Mat PushPullFill(const cv::Mat& colour, const cv::Mat& known) {
+  cv::Mat w;
+  known.convertTo(w, CV_32FC1, 1.0 / 255.0);
+  std::vector<cv::Mat> c_levels(1);
+  std::vector<cv::Mat> w_levels{w};
+  cv::Mat w3;
+  cv::merge(std::vector<cv::Mat>{w, w, w}, w3);
+  c_levels[0] = colour.mul(w3);
+  while (c_levels.back().cols > 1 && c_levels.back().rows > 1) {
+    cv::Mat c, ww;
+    const cv::Size half((c_levels.back().cols + 1) / 2, (c_levels.back().rows + 1) / 2);
+    cv::resize(c_levels.back(), c, half, 0, 0, cv::INTER_AREA);
+    cv::resize(w_levels.back(), ww, half, 0, 0, cv::INTER_AREA);
+    c_levels.push_back(c);
+    w_levels.push_back(ww);
+  }
+  // Pull: normalise from the coarsest level up, blending each level's own data with the coarser estimate.
+  cv::Mat estimate;
+  for (int l = static_cast<int>(c_levels.size()) - 1; l >= 0; --l) {
+    cv::Mat wl = cv::min(w_levels[l] * 4.0, 1.0);  // confidence of this level's own average
+    cv::Mat own(c_levels[l].size(), CV_32FC3);
+    for (int y = 0; y < own.rows; ++y) {
+      for (int x = 0; x < own.cols; ++x) {
+        const float ww = w_levels[l].at<float>(y, x);
+        own.at<cv::Vec3f>(y, x) = ww > 1e-6f ? c_levels[l].at<cv::Vec3f>(y, x) / ww : cv::Vec3f(0, 0, 0);
+      }
+    }
+    if (estimate.empty()) {
+      estimate = own;
+      continue;
+    }
+    cv::Mat up;
+    cv::resize(estimate, up, own.size(), 0, 0, cv::INTER_LINEAR);
+    cv::Mat wl3;
+    cv::merge(std::vector<cv::Mat>{wl, wl, wl}, wl3);
+    estimate = own.mul(wl3) + up.mul(cv::Scalar::all(1.0) - wl3);
+  }
+  return estimate;
+}
+
+}  // namespace
+
+void TextureOptions::Validate() const {
+  AVATAR_CHECK_OPTION(size >= 0 && size <= 4096) << "--texture-size must be in 0..4096, got " << size;
+  AVATAR_CHECK_OPTION(std::isfinite(depth_tolerance) && depth_tolerance > 0) << "--depth-tolerance must be > 0";
+}
+
+Texture UniformTexture(const cv::Vec3f& bgr) {
+  Texture t;
+  t.vertex_colors.assign(kVertexCount, bgr);
+  return t;
+}
+
+Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const cv::Mat& bgr,
+                      const TextureOptions& options) {
+  options.Validate();
+  AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "texture: the source image must be 8-bit BGR";
+  AVATAR_CHECK_INPUT(bgr.size() == fit.image_size)
+      << "texture: the image is " << bgr.cols << "x" << bgr.rows << " but the fit refers to " << fit.image_size.width
+      << "x" << fit.image_size.height;
+  const PinholeCamera cam = PinholeCamera::FromLabel(fit.camera);
+  const std::vector<cv::Point3f> world = WorldVertices(model, fit);
+  const auto& topo = model.topology();
+  std::vector<ScreenVertex> screen(world.size());
+  std::vector<cv::Vec3d> cam_pts(world.size());
+  for (size_t i = 0; i < world.size(); ++i) {
+    cam_pts[i] = cam.ToCamera(cv::Vec3d(world[i].x, world[i].y, world[i].z));
+    const cv::Point2d px = cam.ToPixel(cam_pts[i], bgr.size());
+    screen[i] = {px.x, px.y, cam_pts[i][2]};
+  }
+  const RasterBuffers source = Rasterize(screen, topo.triangles, bgr.size());
+  const double tol = options.depth_tolerance * render::kCameraRadius;
+  auto visible = [&](const cv::Vec3d& p, cv::Point2d* px) {
+    if (p[2] <= 1e-6) return false;
+    *px = cam.ToPixel(p, bgr.size());
+    const int x = static_cast<int>(std::floor(px->x)), y = static_cast<int>(std::floor(px->y));
+    if (x < 0 || y < 0 || x >= bgr.cols || y >= bgr.rows) return false;
+    return p[2] <= source.depth.at<float>(y, x) + tol;
+  };
+  Texture tex;
+  tex.vertex_colors.assign(kVertexCount, cv::Vec3f(0, 0, 0));
+  std::vector<bool> vis(kVertexCount, false);
+  cv::Vec3d sum(0, 0, 0);
+  int count = 0;
+  for (int i = 0; i < kVertexCount; ++i) {
+    cv::Point2d px;
+    if (visible(cam_pts[i], &px)) {
+      vis[i] = true;
+      tex.vertex_colors[i] = SampleBilinear(bgr, px.x, px.y);
+      sum += cv::Vec3d(tex.vertex_colors[i]);
+      ++count;
+    }
+  }
+  const cv::Vec3f mean_colour = count > 0 ? cv::Vec3f(sum / count) : cv::Vec3f(0.5f, 0.5f, 0.5f);
+  for (int i = 0; i < kVertexCount; ++i) {
+    if (vis[i]) continue;
+    const int m = topo.mirror.empty() ? -1 : topo.mirror[i];
+    tex.vertex_colors[i] = (m >= 0 && vis[m]) ? tex.vertex_colors[m] : mean_colour;
+  }
+  if (options.size == 0) return tex;
+  const int t = options.size;
+  std::vector<ScreenVertex> uv_screen(kVertexCount);
+  for (int i = 0; i < kVertexCount; ++i) uv_screen[i] = {topo.uv[i].x * t, topo.uv[i].y * t, 1.0};
+  const RasterBuffers layout = Rasterize(uv_screen, topo.triangles, cv::Size(t, t));
+  cv::Mat colour(t, t, CV_32FC3, cv::Scalar::all(0));
+  cv::Mat seen(t, t, CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < t; ++y) {
+    for (int x = 0; x < t; ++x) {
+      const int tri = layout.triangle.at<int>(y, x);
+      if (tri < 0) continue;
+      const cv::Vec3f b = layout.bary.at<cv::Vec3f>(y, x);
+      const cv::Vec3i& f = topo.triangles[tri];
+      const cv::Vec3d p = b[0] * cam_pts[f[0]] + b[1] * cam_pts[f[1]] + b[2] * cam_pts[f[2]];
+      cv::Point2d px;
+      if (visible(p, &px)) {
+        colour.at<cv::Vec3f>(y, x) = SampleBilinear(bgr, px.x, px.y);
+        seen.at<uchar>(y, x) = 255;
+      }
+    }
+  }
+  // Hidden texels: the mirrored texel if it was seen (the layout is left-right symmetric), then inpainting.
+  cv::Mat filled = colour.clone();
+  cv::Mat known = seen.clone();
+  for (int y = 0; y < t; ++y) {
+    for (int x = 0; x < t; ++x) {
+      const int mx = t - 1 - x;
+      if (!seen.at<uchar>(y, x) && seen.at<uchar>(y, mx)) {
+        filled.at<cv::Vec3f>(y, x) = colour.at<cv::Vec3f>(y, mx);
+        known.at<uchar>(y, x) = 255;
+      }
+    }
+  }
+  tex.uv_image = PushPullFill(filled, known);
+  // Keep the exact samples where we have them.
+  filled.copyTo(tex.uv_image, known);
+  tex.uv_visible = seen;
+  return tex;
+}
+
+}  // namespace avatar::morphable

@@ -1,0 +1,115 @@
+#pragma once
+// What the studio's viewport and every export render: a "frame source" turns a camera pose
+// and an expression into one image with opacity. The GUI, `avatar-studio animate` and the
+// export dialog all render through this one interface, so swapping what stands behind it
+// (the plain portrait, the morphable-model preview, the neural session) touches no caller.
+//
+// Honesty rule: a source renders what it says in Label(); nothing is passed off as the
+// neural avatar unless the neural network produced it.
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/util/run_context.h"
+
+namespace avatar {
+
+// Camera around the head, relative to the frontal view.
+struct ViewPose {
+  double yaw = 0.0;    // Degrees; > 0 turns the head to the image's left.
+  double pitch = 0.0;  // Degrees; > 0 tilts the head up.
+  double roll = 0.0;   // Degrees; > 0 rolls the head clockwise in the image.
+  double zoom = 1.0;   // Magnification; 1 = the default framing.
+
+  bool operator==(const ViewPose& o) const {
+    return yaw == o.yaw && pitch == o.pitch && roll == o.roll && zoom == o.zoom;
+  }
+};
+
+// Named expression controls (see the morphable model's control names) with values in
+// [0,1]; missing names are 0. `coefficients` carries a raw morphable-model expression
+// vector (driving from a video) that is added before the named controls; empty = none.
+struct Expression {
+  std::map<std::string, float> controls;
+  std::vector<float> coefficients;
+
+  float Get(const std::string& name) const {
+    auto it = controls.find(name);
+    return it == controls.end() ? 0.0f : it->second;
+  }
+  bool operator==(const Expression& o) const { return controls == o.controls && coefficients == o.coefficients; }
+};
+
+// One render request.
+struct FrameRequest {
+  ViewPose view;          // Camera.
+  Expression expression;  // Expression.
+  int width = 512;        // Output width in pixels.
+  int height = 512;       // Output height in pixels.
+};
+
+// One rendered frame.
+struct RenderedFrame {
+  cv::Mat bgr;    // [H,W] CV_8UC3 colour on black.
+  cv::Mat alpha;  // [H,W] CV_8UC1 opacity of the head (255 = opaque).
+  cv::Mat depth;  // [H,W] CV_32FC1 depth along the ray (inf where empty); may be empty.
+  // Optional overlays in output pixels: projected face landmarks and mesh triangles
+  // (indices into `vertices`). Empty when the source has no geometry.
+  std::vector<cv::Point2f> landmarks;
+  std::vector<cv::Point2f> vertices;
+  std::vector<cv::Vec3i> triangles;
+};
+
+// What the source panel draws over the portrait thumbnail (portrait pixel coordinates).
+struct SourceOverlay {
+  std::vector<cv::Rect2f> faces;         // Detected face boxes.
+  std::vector<cv::Point2f> landmarks;    // Landmarks of the face used.
+};
+
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  // What this source shows, for the viewport and the status bar, e.g.
+  // "Preview: morphable model (neural model not trained yet)".
+  virtual std::string Label() const = 0;
+  // True when yaw/pitch/roll/zoom change the picture.
+  virtual bool SupportsPose() const = 0;
+  // Names of the expression controls that change the picture (may be empty).
+  virtual std::vector<std::string> ExpressionControls() const = 0;
+  // Length of Expression::coefficients this source understands (0 = none).
+  virtual int CoefficientCount() const { return 0; }
+  // The portrait's own head pose, for the "source pose" export view.
+  virtual ViewPose SourcePose() const { return {}; }
+  // Detection and landmarks measured on the portrait (empty when not analysed).
+  virtual SourceOverlay Overlay() const { return {}; }
+  // Renders one frame. Checks ctx for cancel but does not Report() (exports report per
+  // frame). Must be safe to call from one worker thread at a time while the
+  // GUI thread holds the object (const, no hidden shared mutable state without a lock).
+  // Throws InvalidOptions for sizes outside 16..4096, Cancelled through ctx.
+  virtual RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const = 0;
+};
+
+// Today's minimal source: the portrait itself, letterboxed like the viewport, fully opaque
+// where the photo is. It has no 3D: pose and expression do not change it, and its label
+// says so.
+class PortraitFrameSource : public FrameSource {
+ public:
+  // `bgr` is the loaded portrait (CV_8UC3, not empty).
+  explicit PortraitFrameSource(cv::Mat bgr);
+  std::string Label() const override;
+  bool SupportsPose() const override { return false; }
+  std::vector<std::string> ExpressionControls() const override { return {}; }
+  RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+
+ private:
+  cv::Mat portrait_;
+};
+
+// Throws InvalidOptions unless 16 <= width, height <= 4096.
+void ValidateFrameSize(int width, int height);
+
+}  // namespace avatar

@@ -1,0 +1,180 @@
+// `avatar-studio animate`: the real executable on the bundled sample portrait and short
+// driving clips made here with ffmpeg (with and without a sound track). Outputs are checked
+// with ffprobe and by reading them back.
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "common/run_process.h"
+#include "common/temp_dir.h"
+#include "core/io/data_paths.h"
+#include "core/io/video_io.h"
+#include "core/pipeline/animate.h"
+#include "core/util/error.h"
+
+namespace avatar {
+namespace {
+
+using avatar::testing::ProcessResult;
+using avatar::testing::TempDir;
+namespace fs = std::filesystem;
+
+ProcessResult Studio(const std::string& args) {
+  return avatar::testing::RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
+                                     "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2");
+}
+
+std::string Portrait() {
+  return DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)").string();
+}
+
+// A driving clip cut from the bundled face video (so it shows a real face), re-timed to
+// `fps`, optionally with a sine sound track exactly as long as the video.
+fs::path MakeClip(const TempDir& dir, const std::string& name, int frames, int fps, bool audio) {
+  const std::string source =
+      DataPaths::Resolve().Require("samples/cap13_edit2.mp4", "a sample driving clip (run scripts/setup)").string();
+  const double seconds = static_cast<double>(frames) / fps;
+  std::vector<std::string> args = {"-nostdin", "-y", "-v", "error", "-i", source};
+  if (audio) {
+    args.insert(args.end(), {"-f", "lavfi", "-i", "sine=frequency=440:duration=" + std::to_string(seconds)});
+  }
+  args.insert(args.end(), {"-map", "0:v:0"});
+  if (audio) args.insert(args.end(), {"-map", "1:a:0", "-c:a", "aac"});
+  args.insert(args.end(), {"-vf", "fps=" + std::to_string(fps), "-t", std::to_string(seconds), "-c:v",
+                           "libx264", "-pix_fmt", "yuv420p", (dir / name).string()});
+  EXPECT_EQ(RunProgram("ffmpeg", args), 0) << "ffmpeg could not make the test clip";
+  return dir / name;
+}
+
+// ffprobe's view of a media file: "codec_type,nb_read_frames,r_frame_rate" per stream.
+std::string Probe(const fs::path& file) {
+  const ProcessResult r = avatar::testing::RunProcess(
+      "ffprobe -v error -count_frames -show_entries stream=codec_type,nb_read_frames,r_frame_rate -of csv=p=0 '" +
+      file.string() + "'");
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  return r.out;
+}
+
+TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
+  TempDir dir;
+  const fs::path clip = MakeClip(dir, "talk.mp4", 30, 15, true);
+  ASSERT_TRUE(ProbeHasAudio(clip));
+  const fs::path out = dir / "out.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
+                        "' --width 96 --height 96");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("Wrote 30 frames at 15 fps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n"
+                                                          << r.out;
+  const std::string probe = Probe(out);
+  EXPECT_NE(probe.find("video,15/1,30"), std::string::npos) << probe;
+  EXPECT_NE(probe.find("audio"), std::string::npos) << "the driver's audio is missing:\n" << probe;
+  std::vector<std::string> names = dir.List();
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"out.mp4", "talk.mp4"}));
+}
+
+TEST(Animate, SilentDriverGivesASilentClipWithItsFrameCount) {
+  TempDir dir;
+  const fs::path clip = MakeClip(dir, "silent.mp4", 12, 24, false);
+  const fs::path out = dir / "out.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
+                        "' --width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  const std::string probe = Probe(out);
+  EXPECT_NE(probe.find("video,24/1,12"), std::string::npos) << probe;
+  EXPECT_EQ(probe.find("audio"), std::string::npos) << probe;
+}
+
+TEST(Animate, OrbitWithoutDriverLastsTheRequestedTime) {
+  TempDir dir;
+  const fs::path out = dir / "turntable.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' --view orbit --seconds 1 --fps 10 -o '" + out.string() +
+                        "' --width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(Probe(out).find("video,10/1,10"), std::string::npos) << Probe(out);
+}
+
+TEST(Animate, KeyframesDriveThePngSequence) {
+  TempDir dir;
+  std::ofstream(dir / "keys.json") << R"({"fps": 5, "duration": 1.0,
+      "keys": [{"time": 0, "expression": {"smile": 0}}, {"time": 1, "yaw": 20, "expression": {"smile": 1}}]})";
+  const fs::path out = dir / "frames";
+  const auto r = Studio("animate '" + Portrait() + "' '" + (dir / "keys.json").string() + "' -o '" + out.string() +
+                        "' --width 64 --height 48");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  int count = 0;
+  for (const auto& e : fs::directory_iterator(out)) count += e.path().extension() == ".png" ? 1 : 0;
+  EXPECT_EQ(count, 6);  // t = 0, 0.2, ..., 1.0.
+  const cv::Mat png = cv::imread((out / "frame_000000.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(png.type(), CV_8UC4);
+  EXPECT_EQ(png.cols, 64);
+  EXPECT_EQ(png.rows, 48);
+}
+
+TEST(Animate, CancelLeavesNoFileAndNoTemporaries) {
+  TempDir dir;
+  const fs::path clip = MakeClip(dir, "talk.mp4", 40, 20, true);
+  for (const char* target : {"out.mp4", "frames"}) {
+    AnimateOptions o;
+    o.source = Portrait();
+    o.driver = clip.string();
+    o.output = (dir / target).string();
+    o.width = o.height = 64;
+    int reports = 0;
+    RunContext ctx([&](const Progress& p) {
+      if (p.stage == "export" && ++reports == 10) ctx.RequestCancel();
+    });
+    EXPECT_THROW(RunAnimation(o, ctx), Cancelled);
+    EXPECT_EQ(dir.List(), std::vector<std::string>{"talk.mp4"}) << target;
+  }
+}
+
+TEST(Animate, ExportFailureLeavesNoFile) {
+  TempDir dir;
+  AnimateOptions o;
+  o.source = Portrait();
+  o.output = (dir / "out.mp4").string();
+  o.width = 63;  // H.264 needs even sizes: the sink refuses it before writing.
+  o.height = 64;
+  o.view = "orbit";
+  RunContext ctx;
+  EXPECT_THROW(RunAnimation(o, ctx), InvalidInput);
+  EXPECT_TRUE(dir.List().empty());
+}
+
+TEST(Animate, BadInputsGiveClearMessagesAndExitCodes) {
+  TempDir dir;
+  const std::string out = " -o '" + (dir / "o.mp4").string() + "'";
+  auto r = Studio("animate");
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("PORTRAIT"), std::string::npos) << r.err;
+  r = Studio("animate '" + Portrait() + "' '" + (dir / "missing.mp4").string() + "'" + out);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("missing.mp4"), std::string::npos) << r.err;
+  r = Studio("animate '" + Portrait() + "' --view sideways" + out);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--view"), std::string::npos) << r.err;
+  std::ofstream(dir / "bad.json") << "{\"keys\": [{\"time\": \"soon\"}]}";
+  r = Studio("animate '" + Portrait() + "' '" + (dir / "bad.json").string() + "'" + out);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("time"), std::string::npos) << r.err;
+  r = Studio("animate '" + Portrait() + "' '" + (dir / "notes.txt").string() + "'" + out);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("notes.txt"), std::string::npos) << r.err;
+  EXPECT_EQ(dir.List(), std::vector<std::string>{"bad.json"});
+}
+
+TEST(Animate, HelpDescribesTheOptions) {
+  const auto r = Studio("animate --help");
+  EXPECT_EQ(r.exit_code, 0);
+  for (const char* flag : {"--view", "--neutral-frame", "--smoothing", "--no-audio", "--random-weights", "--preset"}) {
+    EXPECT_NE(r.out.find(flag), std::string::npos) << flag << "\n" << r.out;
+  }
+}
+
+}  // namespace
+}  // namespace avatar

@@ -1,0 +1,233 @@
+// Drives the real studio window under Xvfb through the main job: drop the sample portrait,
+// reconstruct on the worker (the event loop keeps turning), load and scrub the sample
+// driving clip, export 10 frames and verify the file, cancel an export and find nothing
+// left. With AVATAR_TEST_SAVE_SHOTS=DIR it saves screenshots of the main states there.
+#include <QAbstractButton>
+#include <QAbstractSlider>
+#include <QAction>
+#include <QComboBox>
+#include <QDockWidget>
+#include <QDropEvent>
+#include <QMenuBar>
+#include <QMimeData>
+#include <QScreen>
+#include <QSettings>
+#include <QSignalSpy>
+#include <QSlider>
+#include <QSpinBox>
+#include <QStandardPaths>
+#include <QTemporaryDir>
+#include <QUrl>
+#include <QtTest/QtTest>
+
+#include <filesystem>
+
+#include "core/io/data_paths.h"
+#include "core/io/video_io.h"
+#include "ui/image_convert.h"
+#include "ui/job_runner.h"
+#include "ui/main_window.h"
+#include "ui/panels.h"
+#include "ui/studio.h"
+#include "ui/viewport.h"
+
+namespace avatar::ui {
+
+class StudioTest : public QObject {
+  Q_OBJECT
+
+ private:
+  static void DropFile(QWidget* target, const QString& path) {
+    QMimeData mime;
+    mime.setUrls({QUrl::fromLocalFile(path)});
+    const QPoint at = target->rect().center();
+    QDragEnterEvent enter(at, Qt::CopyAction, &mime, Qt::LeftButton, Qt::NoModifier);
+    QApplication::sendEvent(target, &enter);
+    QVERIFY2(enter.isAccepted(), qPrintable(QStringLiteral("the window refused ") + path));
+    QDropEvent drop(QPointF(at), Qt::CopyAction, &mime, Qt::LeftButton, Qt::NoModifier);
+    QApplication::sendEvent(target, &drop);
+  }
+
+  static void Shot(QWidget* window, const QString& name) {
+    if (!qEnvironmentVariableIsSet("AVATAR_TEST_SAVE_SHOTS")) return;
+    QTest::qWait(150);
+    const QImage shot = window->screen()->grabWindow(window->winId()).toImage();
+    QVERIFY(shot.save(qEnvironmentVariable("AVATAR_TEST_SAVE_SHOTS") + "/" + name + ".png"));
+  }
+
+  static QString Sample(const char* relative) {
+    return QString::fromStdString(
+        DataPaths::Resolve().Require(relative, "sample media for the studio test (run scripts/setup)").string());
+  }
+
+  // Waits until the viewport shows a frame answering a request made after this call.
+  static bool WaitForFreshFrame(MainWindow& w, QSignalSpy& shown, int timeout_ms = 30000) {
+    shown.clear();
+    return shown.wait(timeout_ms);
+  }
+
+  std::unique_ptr<MainWindow> window_;
+  QTemporaryDir out_dir_;
+
+ private slots:
+  void initTestCase() {
+    QStandardPaths::setTestModeEnabled(true);
+    SetApplicationIdentity();
+    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
+    QSettings().clear();
+    window_ = std::make_unique<MainWindow>();
+    window_->setDialogsEnabled(false);
+    window_->resize(1280, 720);
+    window_->show();
+    QVERIFY(QTest::qWaitForWindowExposed(window_.get()));
+    // Window shortcuts need the active window (Xvfb has no window manager to activate it).
+    window_->activateWindow();
+    QVERIFY(QTest::qWaitForWindowActive(window_.get()));
+  }
+
+  void cleanupTestCase() { window_.reset(); }
+
+  void emptyWindowFitsAt1280x720WithTooltipsAndShortcuts() {
+    MainWindow& w = *window_;
+    QCOMPARE(w.size(), QSize(1280, 720));
+    Shot(&w, QStringLiteral("studio-empty"));
+    // Every dock and the viewport are visible and inside the window; the viewport is usable.
+    for (QDockWidget* dock : w.findChildren<QDockWidget*>()) {
+      QVERIFY2(dock->isVisible(), qPrintable(dock->windowTitle()));
+      QVERIFY2(w.rect().contains(QRect(dock->mapTo(&w, QPoint(0, 0)), dock->size())), qPrintable(dock->windowTitle()));
+    }
+    QVERIFY(w.viewport()->width() >= 300 && w.viewport()->height() >= 250);
+    qInfo("viewport at 1280x720: %dx%d", w.viewport()->width(), w.viewport()->height());
+    // Tooltips on every control.
+    int controls = 0;
+    for (QWidget* c : w.findChildren<QWidget*>()) {
+      const bool is_control = qobject_cast<QAbstractButton*>(c) || qobject_cast<QAbstractSlider*>(c) ||
+                              qobject_cast<QComboBox*>(c) || qobject_cast<QAbstractSpinBox*>(c);
+      if (!is_control || c->parentWidget() == nullptr) continue;
+      if (c->inherits("QDockWidgetTitleButton") || c->inherits("QScrollBar") || c->inherits("QToolButton")) continue;
+      ++controls;
+      QVERIFY2(!c->toolTip().isEmpty(), qPrintable(QStringLiteral("no tooltip on ") + c->metaObject()->className() +
+                                                   " '" + c->objectName() + "' " + c->property("text").toString()));
+    }
+    qInfo("%d controls, all with tooltips", controls);
+    QVERIFY(controls > 25);
+    // Keyboard shortcuts of the main actions.
+    QStringList shortcuts;
+    for (QAction* a : w.findChildren<QAction*>()) {
+      if (!a->shortcut().isEmpty()) shortcuts << a->shortcut().toString();
+    }
+    for (const char* key : {"Ctrl+O", "Ctrl+Shift+O", "Ctrl+E", "Ctrl+R", "Esc", "Ctrl+N", "Ctrl+0", "Ctrl+L",
+                            "Ctrl+M", "Space", "[", "]"}) {
+      QVERIFY2(shortcuts.contains(QString::fromLatin1(key)), key);
+    }
+    // Sliders are reachable by keyboard (a mnemonic label or focus) and move with the arrows.
+    QSlider* yaw = w.posePanel()->yawSlider();
+    yaw->setFocus();
+    QTest::keyClick(yaw, Qt::Key_Right);
+    QCOMPARE(yaw->value(), 1);
+    QTest::keyClick(yaw, Qt::Key_Left);
+    QCOMPARE(yaw->value(), 0);
+  }
+
+  void droppedPortraitReconstructsOnTheWorker() {
+    MainWindow& w = *window_;
+    QSignalSpy done(&w, &MainWindow::reconstructionFinished);
+    QSignalSpy failed(&w, &MainWindow::reconstructionFailed);
+    int ticks_while_busy = 0;
+    QTimer timer;
+    connect(&timer, &QTimer::timeout, [&] { ticks_while_busy += w.jobRunner()->isBusy() ? 1 : 0; });
+    timer.start(5);
+    DropFile(&w, Sample(DataPaths::kDefaultPortrait));
+    QVERIFY(w.jobRunner()->isBusy() || done.count() == 1);
+    QVERIFY2(done.wait(120000) || done.count() == 1, qPrintable(w.lastError()));
+    timer.stop();
+    QCOMPARE(failed.count(), 0);
+    qInfo("the GUI event loop turned %d times during reconstruction", ticks_while_busy);
+    QVERIFY(w.frameSource() != nullptr);
+    QSignalSpy shown(&w, &MainWindow::frameShown);
+    QVERIFY(shown.wait(30000) || !w.lastFrame().isNull());
+    QVERIFY(!w.viewport()->label().isEmpty());
+    QVERIFY(!w.lastFrame().isNull());
+    Shot(&w, QStringLiteral("studio-reconstructed"));
+  }
+
+  void droppedVideoBecomesTheDriverAndScrubs() {
+    MainWindow& w = *window_;
+    QSignalSpy loaded(&w, &MainWindow::driverLoaded);
+    QSignalSpy shown(&w, &MainWindow::frameShown);
+    DropFile(&w, Sample("samples/cap13_edit2.mp4"));
+    QVERIFY(loaded.wait(30000));
+    const VideoInfo info = VideoReader(Sample("samples/cap13_edit2.mp4").toStdString()).Info();
+    QCOMPARE(w.drivingPanel()->frameCount(), static_cast<qint64>(info.frame_count));
+    QTRY_VERIFY_WITH_TIMEOUT(w.lastDriverFrame() == 0, 30000);
+    // Scrub on the timeline.
+    w.drivingPanel()->timeline()->setValue(400);
+    QTRY_VERIFY_WITH_TIMEOUT(w.lastDriverFrame() == 400, 30000);
+    w.drivingPanel()->timeline()->setValue(120);
+    QTRY_VERIFY_WITH_TIMEOUT(w.lastDriverFrame() == 120, 30000);
+    // Play advances the timeline; Space (the shortcut) pauses.
+    w.drivingPanel()->setPlaying(true);
+    QTRY_VERIFY_WITH_TIMEOUT(w.drivingPanel()->currentFrame() >= 123, 30000);
+    QTest::keyClick(&w, Qt::Key_Space);
+    QVERIFY(!w.drivingPanel()->isPlaying());
+    Shot(&w, QStringLiteral("studio-driving"));
+  }
+
+  void exportsTenFramesOfTheDrivenAvatar() {
+    MainWindow& w = *window_;
+    QVERIFY(out_dir_.isValid());
+    const QString target = out_dir_.filePath(QStringLiteral("ten.mp4"));
+    ExportOptions out;
+    out.output = target.toStdString();
+    AnimationPlan plan;
+    plan.width = plan.height = 128;
+    plan.max_frames = 10;
+    QSignalSpy finished(&w, &MainWindow::exportFinished);
+    QSignalSpy failed(&w, &MainWindow::exportFailed);
+    QVERIFY(w.startExport(out, plan));
+    QVERIFY2(finished.wait(120000), qPrintable(w.lastError()));
+    QCOMPARE(failed.count(), 0);
+    QCOMPARE(finished.first().at(1).toLongLong(), qint64{10});
+    VideoReader reader(target.toStdString());
+    QCOMPARE(reader.Info().frame_count, int64_t{10});
+    QCOMPARE(reader.Info().width, 128);
+    QCOMPARE(reader.Info().fps, VideoReader(Sample("samples/cap13_edit2.mp4").toStdString()).Info().fps);
+    cv::Mat first;
+    QVERIFY(reader.Read(first));
+    QVERIFY(cv::norm(first, cv::NORM_INF) > 0);  // Not an empty black clip.
+  }
+
+  void cancelledExportLeavesNothing() {
+    MainWindow& w = *window_;
+    QTemporaryDir dir;
+    const QString target = dir.filePath(QStringLiteral("long.mp4"));
+    ExportOptions out;
+    out.output = target.toStdString();
+    AnimationPlan plan;  // The whole clip at 512x512: long enough to cancel.
+    QSignalSpy cancelled(&w, &MainWindow::exportCancelled);
+    QSignalSpy progress(w.jobRunner(), &JobRunner::progress);
+    QVERIFY(w.startExport(out, plan));
+    QVERIFY(progress.wait(30000));
+    Shot(&w, QStringLiteral("studio-exporting"));
+    QElapsedTimer clock;
+    clock.start();
+    QTest::keyClick(&w, Qt::Key_Escape);  // The Cancel shortcut.
+    QVERIFY(cancelled.wait(30000));
+    qInfo("export cancel took effect after %lld ms", static_cast<long long>(clock.elapsed()));
+    QVERIFY(QDir(dir.path()).entryList(QDir::AllEntries | QDir::Hidden | QDir::NoDotAndDotDot).isEmpty());
+  }
+
+  void settingsPersist() {
+    window_->sourcePanel()->setPreset(QStringLiteral("paper"));
+    window_->close();
+    MainWindow again;
+    QCOMPARE(again.sourcePanel()->preset(), QStringLiteral("paper"));
+    QCOMPARE(again.size(), QSize(1280, 720));
+    again.sourcePanel()->setPreset(QStringLiteral("lite"));
+  }
+};
+
+}  // namespace avatar::ui
+
+QTEST_MAIN(avatar::ui::StudioTest)
+#include "studio_test.moc"
