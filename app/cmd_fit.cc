@@ -3,11 +3,11 @@
 // expression at the frontal camera), I_neu / M_neu (neutral at the source camera) and a JSON
 // with coefficients, camera label and fit error.
 
+#include <algorithm>
 #include <filesystem>
+#include <functional>
 #include <iomanip>
 #include <iostream>
-#include <algorithm>
-#include <functional>
 #include <optional>
 
 #include <nlohmann/json.hpp>
@@ -99,8 +99,9 @@ struct FaceOutcome {
   morphable::FitResult fit;
 };
 
-FaceOutcome FitOne(const FitCommandOptions& o, const morphable::MorphableModel& model, const face::AlignedPortrait& portrait,
-                   const std::map<std::string, float>& edits, const fs::path& dir) {
+FaceOutcome FitOne(const FitCommandOptions& o, const morphable::MorphableModel& model,
+                   const face::AlignedPortrait& portrait, const std::map<std::string, float>& edits,
+                   const fs::path& dir) {
   fs::create_directories(dir);
   const cv::Size crop = portrait.image_unmatted.size();
   const morphable::FitResult fit = morphable::Fit(model, portrait.landmarks, crop, o.fit);
@@ -157,8 +158,9 @@ FaceOutcome FitOne(const FitCommandOptions& o, const morphable::MorphableModel& 
   j["inter_ocular_px"] = fit.inter_ocular_px;
   j["mean_error_iod"] = fit.mean_error_iod;
   j["landmark_error_px"] = fit.landmark_error;
-  j["crop_from_image"] = {portrait.crop_from_image(0, 0), portrait.crop_from_image(0, 1), portrait.crop_from_image(0, 2),
-                          portrait.crop_from_image(1, 0), portrait.crop_from_image(1, 1), portrait.crop_from_image(1, 2)};
+  j["crop_from_image"] = {portrait.crop_from_image(0, 0), portrait.crop_from_image(0, 1),
+                          portrait.crop_from_image(0, 2), portrait.crop_from_image(1, 0),
+                          portrait.crop_from_image(1, 1), portrait.crop_from_image(1, 2)};
   j["options"] = options::ToJson(o.fit);
   WriteBytesAtomically(dir / "fit.json", j.dump(2) + "\n");
   return {fit};
@@ -267,8 +269,8 @@ int RunBenchMorphableImpl(const BenchMorphableOptions& o, RunContext& ctx) {
   render::OrbitPose pose;
   pose.yaw = 20;
   pose.pitch = 5;
-  const morphable::CameraLabel cam = morphable::LabelFromTensor(render::LabelsFromCameras(
-      {render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)}));
+  const morphable::CameraLabel cam = morphable::LabelFromTensor(
+      render::LabelsFromCameras({render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)}));
   const cv::Size crop(512, 512);
   morphable::Beta beta = m.ExpressionFromControls({{"jawOpen", 0.5f}, {"smile", 0.3f}});
   const auto world = m.Vertices({}, beta);
@@ -293,7 +295,9 @@ int RunBenchMorphableImpl(const BenchMorphableOptions& o, RunContext& ctx) {
   ss2.supersample = 2;
   const double r1 = MedianMs(o.repeats, [&] { morphable::RenderNeutral(m, fit, tex, crop, ss1); });
   const double r2 = MedianMs(o.repeats, [&] { morphable::RenderNeutral(m, fit, tex, crop, ss2); });
-  const double r256 = MedianMs(o.repeats, [&] { morphable::RenderExpressionImage(m, fit, tex, beta, {256, 256}, ss1); });
+  const double r256 = MedianMs(o.repeats, [&] {
+    morphable::RenderExpressionImage(m, fit, tex, beta, {256, 256}, ss1);
+  });
   std::vector<face::Landmarks> frames(o.frames, lm);
   const double seq_ms = MedianMs(1, [&] { morphable::FitSequence(m, frames, crop, morphable::FitOptions{}, ctx); });
   std::cout << "Morphable benchmark: " << ConfiguredThreads() << " threads, model with " << m.num_identity()
@@ -302,7 +306,8 @@ int RunBenchMorphableImpl(const BenchMorphableOptions& o, RunContext& ctx) {
             << " GFLOP/s, one 1024^3 GEMM = " << std::setprecision(2) << gemm_ms << " ms\n\n"
             << "| stage | time (ms) | in 1024^3 GEMMs |\n|---|---|---|\n";
   auto row = [&](const char* name, double ms) {
-    std::cout << "| " << name << " | " << std::setprecision(2) << ms << " | " << std::setprecision(1) << ms / gemm_ms << " |\n";
+    std::cout << "| " << name << " | " << std::setprecision(2) << ms << " | " << std::setprecision(1) << ms / gemm_ms
+              << " |\n";
   };
   row("Fit (one 512 crop, 468 landmarks)", fit_ms);
   row("SampleTexture (256^2 UV)", tex_ms);

@@ -106,7 +106,8 @@ double Quantile(std::vector<double> v, double q) {
 void MorphableBuildOptions::Validate() const {
   AVATAR_CHECK_OPTION(expression_components >= 0 && expression_components <= 200)
       << "--expression-components must be in 0..200";
-  AVATAR_CHECK_OPTION(expression_variance > 0.5 && expression_variance < 1.0) << "--expression-variance must be in (0.5, 1)";
+  AVATAR_CHECK_OPTION(expression_variance > 0.5 && expression_variance < 1.0)
+      << "--expression-variance must be in (0.5, 1)";
   AVATAR_CHECK_OPTION(max_identity_components >= 0 && max_identity_components <= 200)
       << "--max-identity-components must be in 0..200";
 }
@@ -177,7 +178,8 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
         double rms = 0.0;
         aligned[si].push_back(AlignToReference(lm, reference, topo, &rms));
         rms_sum += rms;
-        if ((++done) % 200 == 0) ctx.Report("align shapes", 0.3 * (round + static_cast<double>(done) / total_shapes) / 2);
+        if ((++done) % 200 == 0)
+          ctx.Report("align shapes", 0.3 * (round + static_cast<double>(done) / total_shapes) / 2);
       }
       if (src.shapes.empty()) continue;
       report.alignment_rms.emplace_back(src.name, rms_sum / src.shapes.size());
@@ -217,7 +219,8 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
   cv::Mat id_shapes(persons, static_cast<int>(kCoords), CV_64F);
   for (int p = 0; p < persons; ++p) {
     const auto& sum = person_sum[person_order[p]];
-    for (size_t c = 0; c < kCoords; ++c) id_shapes.at<double>(p, static_cast<int>(c)) = sum[c] / person_count[person_order[p]];
+    for (size_t c = 0; c < kCoords; ++c)
+      id_shapes.at<double>(p, static_cast<int>(c)) = sum[c] / person_count[person_order[p]];
   }
   cv::Mat mean_row;
   cv::reduce(id_shapes, mean_row, 0, cv::REDUCE_AVG);
@@ -275,13 +278,15 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
     // Jaw width: x stretched below the mouth, fading in from the mouth to the chin; 1 std = 6%.
     add([&](const cv::Point3f& p) { return cv::Vec3d((p.x - c.x) * Smoothstep(mouth_y, chin_y, p.y), 0, 0); }, 0.06);
     // Nose: the nose region (Gaussian, radius 1.5 cm) pushed forward; 1 std = 0.35 cm at the tip.
-    add([&](const cv::Point3f& p) {
+    add(
+        [&](const cv::Point3f& p) {
           const double r2 = cv::norm(p - nose) * cv::norm(p - nose) / (1.5 * cm * 1.5 * cm);
           return cv::Vec3d(0, 0, std::exp(-0.5 * r2));
         },
         0.35 * cm);
     // Eye spacing: each eye region (Gaussian, radius 1.5 cm) moved outwards; 1 std = 0.25 cm per eye.
-    add([&](const cv::Point3f& p) {
+    add(
+        [&](const cv::Point3f& p) {
           const double rr = cv::norm(p - eye_r) * cv::norm(p - eye_r) / (1.5 * cm * 1.5 * cm);
           const double rl = cv::norm(p - eye_l) * cv::norm(p - eye_l) / (1.5 * cm * 1.5 * cm);
           return cv::Vec3d(std::exp(-0.5 * rl) - std::exp(-0.5 * rr), 0, 0);
@@ -384,8 +389,8 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
   for (int j = 0; j < kRegs; ++j) {
     up[j] = Quantile(columns[j], 0.98) - Quantile(columns[j], 0.5);
     down[j] = Quantile(columns[j], 0.5) - Quantile(columns[j], 0.02);
-    control_info["measures"][regs[j].name] = {{"median", Quantile(columns[j], 0.5)}, {"median_to_p98", up[j]},
-                                              {"p2_to_median", down[j]}};
+    control_info["measures"][regs[j].name] = {
+        {"median", Quantile(columns[j], 0.5)}, {"median_to_p98", up[j]}, {"p2_to_median", down[j]}};
   }
   // Jacobian of the measures with respect to the PCA coefficients at the mean shape.
   cv::Mat g(kRegs, kexp, CV_64F);
@@ -395,7 +400,8 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
       const double eps = 0.05 * exp_std[k];
       std::vector<cv::Point3f> shape = mean_pts;
       for (int i = 0; i < kVertexCount; ++i) {
-        shape[i] += cv::Point3f(exp_cols[k][3 * i], exp_cols[k][3 * i + 1], exp_cols[k][3 * i + 2]) * static_cast<float>(eps);
+        shape[i] +=
+            cv::Point3f(exp_cols[k][3 * i], exp_cols[k][3 * i + 1], exp_cols[k][3 * i + 2]) * static_cast<float>(eps);
       }
       const ExpressionMeasures m1 = MeasureShape(shape);
       for (int j = 0; j < kRegs; ++j) g.at<double>(j, k) = (value_of(m1, j) - value_of(m0, j)) / eps;
@@ -494,12 +500,14 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
       "inner-lip gap +(median to 98th percentile of the clips); brows and eyelids held");
   add("smile", "Smile", {{kCornerLift, up[kCornerLift]}, {kMouthWidth, 0.5 * up[kMouthWidth]}},
       concat({kLipGap}, eyes_brows),
-      "mouth corners lifted (median to 98th pct) and mouth widened by half its 98th-pct step; lips closed, brows and eyelids held");
+      "mouth corners lifted (median to 98th pct) and mouth widened by half its 98th-pct step; lips closed, brows and "
+      "eyelids held");
   add("frown", "Frown", {{kCornerLift, -down[kCornerLift]}}, concat({kLipGap, kMouthWidth}, eyes_brows),
       "mouth corners lowered (median to 2nd pct); lip gap, width, brows and eyelids held");
   add("pucker", "Pucker", {{kMouthWidth, -down[kMouthWidth]}, {kLipProtrusion, up[kLipProtrusion]}},
       concat({kLipGap}, eyes_brows),
-      "mouth narrowed (median to 2nd pct) and lips pushed forward (median to 98th pct); lip gap, brows and eyelids held");
+      "mouth narrowed (median to 2nd pct) and lips pushed forward (median to 98th pct); lip gap, brows and eyelids "
+      "held");
   add("mouthWide", "Mouth wide", {{kMouthWidth, up[kMouthWidth]}}, concat({kLipGap, kCornerLift}, eyes_brows),
       "mouth widened (median to 98th pct); lip gap, corner height, brows and eyelids held");
   add("browRaise", "Brows up", {{kBrowHeight, up[kBrowHeight]}}, concat({kEyeOpen}, mouth),
@@ -511,8 +519,9 @@ MorphableModel BuildMorphableModel(const Topology& topo, const std::vector<Build
     Beta l(kexp_total, 0.0f), r(kexp_total, 0.0f);
     l[kexp] = 2.0f * exp_std[kexp];
     r[kexp + 1] = 2.0f * exp_std[kexp + 1];
-    const std::string how = "one-sided component: regression of the frames' displacement on the eyelid distance, "
-                            "restricted to a 1.6 cm Gaussian around the eye; 1.0 brings the mean face's eyelids together";
+    const std::string how =
+        "one-sided component: regression of the frames' displacement on the eyelid distance, "
+        "restricted to a 1.6 cm Gaussian around the eye; 1.0 brings the mean face's eyelids together";
     controls.push_back({"blinkLeft", "Blink left", "subject's left eye; " + how, l});
     controls.push_back({"blinkRight", "Blink right", "subject's right eye; " + how, r});
     control_info["blinkLeft"] = controls[controls.size() - 2].description;

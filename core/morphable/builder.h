@@ -24,10 +24,10 @@ namespace avatar::morphable {
 
 // Landmarks of one person.
 struct BuildSource {
-  std::string name;                      // e.g. "franck.mp4" or "sample1.jpg#2"
-  std::string identity;                  // sources with the same key are one person
-  bool is_clip = false;                  // clip frames feed the expression basis
-  std::vector<face::Landmarks> shapes;   // facemesh landmarks (image pixels)
+  std::string name;                     // e.g. "franck.mp4" or "sample1.jpg#2"
+  std::string identity;                 // sources with the same key are one person
+  bool is_clip = false;                 // clip frames feed the expression basis
+  std::vector<face::Landmarks> shapes;  // facemesh landmarks (image pixels)
 };
 
 struct MorphableBuildOptions {
@@ -51,13 +51,13 @@ struct MorphableBuildOptions {
 };
 
 struct MorphableBuildReport {
-  int persons = 0;                              // distinct identities
-  int clip_frames = 0;                          // frames in the expression PCA
-  int identity_pca_components = 0;              // identity components from data
-  std::vector<double> expression_cumulative;    // cumulative variance fraction for K = 1..64
-  int expression_pca_components = 0;            // chosen K
+  int persons = 0;                                            // distinct identities
+  int clip_frames = 0;                                        // frames in the expression PCA
+  int identity_pca_components = 0;                            // identity components from data
+  std::vector<double> expression_cumulative;                  // cumulative variance fraction for K = 1..64
+  int expression_pca_components = 0;                          // chosen K
   std::vector<std::pair<std::string, double>> alignment_rms;  // per source: RMS residual after alignment (model units)
-  nlohmann::json controls;                      // per control: regressor, quantile step, R^2
+  nlohmann::json controls;                                    // per control: regressor, quantile step, R^2
   nlohmann::json ToJson() const;
 };
 

@@ -4,8 +4,8 @@
 
 #include <array>
 
-#include <opencv2/core.hpp>
 #include <torch/torch.h>
+#include <opencv2/core.hpp>
 
 #include "core/render/camera.h"
 

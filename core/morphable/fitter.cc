@@ -127,7 +127,8 @@ double Evaluate(const Problem& p, const State& s, cv::Mat* jacobian, cv::Mat* re
     }
     auto basis_cols = [&](const std::vector<float>& basis, int kcount, int col0) {
       for (int k = 0; k < kcount; ++k) {
-        const cv::Vec3d b(basis[static_cast<size_t>(3 * i) * kcount + k], basis[static_cast<size_t>(3 * i + 1) * kcount + k],
+        const cv::Vec3d b(basis[static_cast<size_t>(3 * i) * kcount + k],
+                          basis[static_cast<size_t>(3 * i + 1) * kcount + k],
                           basis[static_cast<size_t>(3 * i + 2) * kcount + k]);
         const cv::Vec3d rb = s.rotation * b;
         for (int c = 0; c < 3; ++c) at(c, col0 + k) = rb[c];
@@ -346,8 +347,10 @@ void FitOptions::Validate() const {
 
 double InterOcularDistance(const std::vector<cv::Point3f>& p) {
   if (p.size() < static_cast<size_t>(kVertexCount)) return 0.0;
-  const cv::Point2d r = (cv::Point2d(p[kRightEye[0]].x, p[kRightEye[0]].y) + cv::Point2d(p[kRightEye[1]].x, p[kRightEye[1]].y)) * 0.5;
-  const cv::Point2d l = (cv::Point2d(p[kLeftEye[0]].x, p[kLeftEye[0]].y) + cv::Point2d(p[kLeftEye[1]].x, p[kLeftEye[1]].y)) * 0.5;
+  const cv::Point2d r =
+      (cv::Point2d(p[kRightEye[0]].x, p[kRightEye[0]].y) + cv::Point2d(p[kRightEye[1]].x, p[kRightEye[1]].y)) * 0.5;
+  const cv::Point2d l =
+      (cv::Point2d(p[kLeftEye[0]].x, p[kLeftEye[0]].y) + cv::Point2d(p[kLeftEye[1]].x, p[kLeftEye[1]].y)) * 0.5;
   return cv::norm(r - l);
 }
 
@@ -477,7 +480,8 @@ std::vector<FitResult> FitSequence(const MorphableModel& model, const std::vecto
   ctx.Report("fit frames", 1.0);
   std::vector<FitResult> out;
   out.reserve(nframes);
-  for (int t = 0; t < nframes; ++t) out.push_back(Finish(model, problems[t], states[t], image_size, options.iterations));
+  for (int t = 0; t < nframes; ++t)
+    out.push_back(Finish(model, problems[t], states[t], image_size, options.iterations));
   return out;
 }
 

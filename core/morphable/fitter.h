@@ -52,13 +52,13 @@ struct FitOptions {
 };
 
 struct FitResult {
-  Alpha alpha;                // identity, [Kid]
-  Beta beta;                  // expression, [Kexp]
-  float scale = 1.0f;         // world = scale * model vertices
-  cv::Matx33d rotation;       // world -> camera rotation (OpenCV camera axes)
-  cv::Vec3d translation;      // camera = rotation * world + translation; |translation| = 2.7
-  CameraLabel camera{};       // the same camera as an EG3D label (cam2world at radius 2.7 + K)
-  cv::Size image_size;        // size of the image the landmarks refer to
+  Alpha alpha;                        // identity, [Kid]
+  Beta beta;                          // expression, [Kexp]
+  float scale = 1.0f;                 // world = scale * model vertices
+  cv::Matx33d rotation;               // world -> camera rotation (OpenCV camera axes)
+  cv::Vec3d translation;              // camera = rotation * world + translation; |translation| = 2.7
+  CameraLabel camera{};               // the same camera as an EG3D label (cam2world at radius 2.7 + K)
+  cv::Size image_size;                // size of the image the landmarks refer to
   std::vector<float> landmark_error;  // per landmark 2D reprojection error, pixels, [468]
   double mean_error_px = 0.0;         // mean of landmark_error
   double inter_ocular_px = 0.0;       // eye-centre distance of the input landmarks, pixels

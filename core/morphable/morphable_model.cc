@@ -38,7 +38,7 @@ void AddBasis(const std::vector<float>& basis, const std::vector<float>& coeff, 
 }  // namespace
 
 const std::vector<std::string>& RequiredControlNames() {
-  static const std::vector<std::string> names = {"jawOpen",  "smile",     "frown",      "pucker",     "mouthWide",
+  static const std::vector<std::string> names = {"jawOpen",   "smile",     "frown",     "pucker",     "mouthWide",
                                                  "browRaise", "browFrown", "blinkLeft", "blinkRight", "eyesWide"};
   return names;
 }
@@ -54,8 +54,8 @@ MorphableModel::MorphableModel(Topology topology, std::vector<float> mean, std::
       expression_std_(std::move(expression_std)) {
   AVATAR_CHECK_INPUT(mean_.size() == kCoords) << "morphable model: mean must have " << kCoords << " values";
   AVATAR_CHECK_INPUT(identity_basis_.size() == kCoords * identity_std_.size())
-      << "morphable model: identity basis size " << identity_basis_.size() << " does not match "
-      << identity_std_.size() << " components";
+      << "morphable model: identity basis size " << identity_basis_.size() << " does not match " << identity_std_.size()
+      << " components";
   AVATAR_CHECK_INPUT(expression_basis_.size() == kCoords * expression_std_.size())
       << "morphable model: expression basis size " << expression_basis_.size() << " does not match "
       << expression_std_.size() << " components";
@@ -74,8 +74,7 @@ std::vector<cv::Point3f> MorphableModel::Vertices(const Alpha& alpha, const Beta
   AVATAR_CHECK_INPUT(alpha.empty() || alpha.size() == identity_std_.size())
       << "alpha has " << alpha.size() << " values, the model has " << identity_std_.size() << " identity components";
   AVATAR_CHECK_INPUT(beta.empty() || beta.size() == expression_std_.size())
-      << "beta has " << beta.size() << " values, the model has " << expression_std_.size()
-      << " expression components";
+      << "beta has " << beta.size() << " values, the model has " << expression_std_.size() << " expression components";
   std::vector<float> flat = mean_;
   AddBasis(identity_basis_, alpha, flat);
   AddBasis(expression_basis_, beta, flat);
@@ -96,7 +95,8 @@ torch::Tensor MorphableModel::VerticesTensor(const torch::Tensor& alpha, const t
   const int64_t n = static_cast<int64_t>(kCoords);
   torch::Tensor flat = from(mean_, 1, n);  // [1,N]
   if (num_identity() > 0) flat = flat + torch::matmul(alpha, from(identity_basis_, n, num_identity()).t());
-  if (num_expression() > 0) flat = flat + torch::matmul(beta.to(opts), from(expression_basis_, n, num_expression()).t());
+  if (num_expression() > 0)
+    flat = flat + torch::matmul(beta.to(opts), from(expression_basis_, n, num_expression()).t());
   return flat.expand({alpha.size(0), n}).reshape({alpha.size(0), kVertexCount, 3});
 }
 
@@ -139,7 +139,8 @@ void MorphableModel::Save(const std::filesystem::path& path) const {
   meta["build_info"] = nlohmann::json::parse(build_info_json_.empty() ? "{}" : build_info_json_);
   nlohmann::json controls = nlohmann::json::array();
   for (const auto& c : controls_) {
-    controls.push_back({{"name", c.name}, {"label", c.label}, {"description", c.description}, {"direction", c.direction}});
+    controls.push_back(
+        {{"name", c.name}, {"label", c.label}, {"description", c.description}, {"direction", c.direction}});
   }
   meta["controls"] = controls;
   const std::string text = meta.dump();

@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/core.hpp>
 #include <torch/torch.h>
+#include <opencv2/core.hpp>
 
 #include "core/io/data_paths.h"
 #include "core/morphable/topology.h"
@@ -65,9 +65,9 @@ class MorphableModel {
   int num_identity() const { return static_cast<int>(identity_std_.size()); }
   int num_expression() const { return static_cast<int>(expression_std_.size()); }
   const Topology& topology() const { return topology_; }
-  const std::vector<float>& mean() const { return mean_; }                      // [468*3]
-  const std::vector<float>& identity_basis() const { return identity_basis_; }  // [468*3, Kid]
-  const std::vector<float>& identity_std() const { return identity_std_; }      // [Kid]
+  const std::vector<float>& mean() const { return mean_; }                          // [468*3]
+  const std::vector<float>& identity_basis() const { return identity_basis_; }      // [468*3, Kid]
+  const std::vector<float>& identity_std() const { return identity_std_; }          // [Kid]
   const std::vector<float>& expression_basis() const { return expression_basis_; }  // [468*3, Kexp]
   const std::vector<float>& expression_std() const { return expression_std_; }      // [Kexp]
 

@@ -110,8 +110,8 @@ RasterBuffers Rasterize(const std::vector<ScreenVertex>& vertices, const std::ve
   for (size_t t = 0; t < triangles.size(); ++t) {
     const cv::Vec3i& tri = triangles[t];
     for (int c = 0; c < 3; ++c) {
-      AVATAR_CHECK_INPUT(tri[c] >= 0 && tri[c] < n) << "triangle " << t << " has vertex index " << tri[c]
-                                                    << " outside [0," << n << ")";
+      AVATAR_CHECK_INPUT(tri[c] >= 0 && tri[c] < n)
+          << "triangle " << t << " has vertex index " << tri[c] << " outside [0," << n << ")";
     }
     const ScreenVertex& a = vertices[tri[0]];
     const ScreenVertex& b = vertices[tri[1]];

@@ -13,9 +13,9 @@
 namespace avatar::morphable {
 
 struct Texture {
-  cv::Mat uv_image;                       // [T,T] CV_32FC3 BGR in [0,1] (may be empty: use vertex colours)
-  cv::Mat uv_visible;                     // [T,T] CV_8UC1, 255 where sampled from the image, 0 inpainted/outside
-  std::vector<cv::Vec3f> vertex_colors;   // [468] BGR in [0,1]
+  cv::Mat uv_image;                      // [T,T] CV_32FC3 BGR in [0,1] (may be empty: use vertex colours)
+  cv::Mat uv_visible;                    // [T,T] CV_8UC1, 255 where sampled from the image, 0 inpainted/outside
+  std::vector<cv::Vec3f> vertex_colors;  // [468] BGR in [0,1]
 };
 
 struct TextureOptions {

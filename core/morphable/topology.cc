@@ -45,11 +45,20 @@ class WireReader {
   }
   void Skip(int wire_type) {
     switch (wire_type) {
-      case 0: Varint(); break;
-      case 1: Advance(8); break;
-      case 2: Sub(); break;
-      case 5: Advance(4); break;
-      default: throw ModelLoad(src_ + ": unsupported protobuf wire type; re-run scripts/setup");
+      case 0:
+        Varint();
+        break;
+      case 1:
+        Advance(8);
+        break;
+      case 2:
+        Sub();
+        break;
+      case 5:
+        Advance(4);
+        break;
+      default:
+        throw ModelLoad(src_ + ": unsupported protobuf wire type; re-run scripts/setup");
     }
   }
 
@@ -94,7 +103,8 @@ std::string ReadPackedAsset(const std::filesystem::path& data_file, const std::f
   const std::regex entry(R"re("filename"\s*:\s*"([^"]*)"\s*,\s*"start"\s*:\s*(\d+)\s*,\s*"end"\s*:\s*(\d+))re");
   for (auto it = std::sregex_iterator(loader.begin(), loader.end(), entry); it != std::sregex_iterator(); ++it) {
     const std::string name = (*it)[1];
-    if (name.size() < name_suffix.size() || name.compare(name.size() - name_suffix.size(), name_suffix.size(), name_suffix) != 0) {
+    if (name.size() < name_suffix.size() ||
+        name.compare(name.size() - name_suffix.size(), name_suffix.size(), name_suffix) != 0) {
       continue;
     }
     const uint64_t start = std::stoull((*it)[2]);

@@ -36,7 +36,8 @@ std::vector<BuildSource> SyntheticSources(const MorphableModel& truth, int perso
       std::vector<cv::Point3f> w = truth.Vertices(a, b);
       const float scale = static_cast<float>(1.0 + 0.1 * u(rng));
       for (auto& q : w) q *= scale;
-      s.shapes.push_back(ProjectLandmarks(w, OrbitLabel(yaw * u(rng), 0.4 * yaw * u(rng), 0.2 * yaw * u(rng)), cv::Size(512, 512), noise_px, rng));
+      s.shapes.push_back(ProjectLandmarks(w, OrbitLabel(yaw * u(rng), 0.4 * yaw * u(rng), 0.2 * yaw * u(rng)),
+                                          cv::Size(512, 512), noise_px, rng));
     }
     sources.push_back(s);
   }
@@ -121,7 +122,9 @@ TEST(Builder, NamedControlsMoveTheirMeasures) {
   const MorphableModel built = BuildMorphableModel(topo, sources, opts, ctx);
   for (const auto& name : RequiredControlNames()) EXPECT_NO_THROW(built.Control(name)) << name;
   const ExpressionMeasures base = MeasureShape(built.Vertices({}, {}));
-  auto after = [&](const char* name) { return MeasureShape(built.Vertices({}, built.ExpressionFromControls({{name, 1.0f}}))); };
+  auto after = [&](const char* name) {
+    return MeasureShape(built.Vertices({}, built.ExpressionFromControls({{name, 1.0f}})));
+  };
   EXPECT_GT(after("jawOpen").lip_gap, base.lip_gap);
   EXPECT_GT(after("smile").corner_lift, base.corner_lift);
   EXPECT_LT(after("frown").corner_lift, base.corner_lift);
@@ -129,7 +132,8 @@ TEST(Builder, NamedControlsMoveTheirMeasures) {
   EXPECT_LT(after("pucker").mouth_width, base.mouth_width);
   EXPECT_GT(after("browRaise").brow_height, base.brow_height);
   EXPECT_LT(after("browFrown").brow_height, base.brow_height);
-  EXPECT_GT(after("eyesWide").eye_open_left + after("eyesWide").eye_open_right, base.eye_open_left + base.eye_open_right);
+  EXPECT_GT(after("eyesWide").eye_open_left + after("eyesWide").eye_open_right,
+            base.eye_open_left + base.eye_open_right);
   const ExpressionMeasures bl = after("blinkLeft");
   const ExpressionMeasures br = after("blinkRight");
   EXPECT_LT(bl.eye_open_left, base.eye_open_left);

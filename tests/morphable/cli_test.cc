@@ -27,10 +27,10 @@ std::string Sample(const char* name) {
 TEST(FitCommand, WritesEveryOutputWithCameraLabelAndError) {
   avatar::testing::TempDir dir;
   const auto r = RunCli("fit '" + Sample("grace_hopper.jpg") + "' --expr jawOpen=0.8 --expr smile=0.3 --out-dir '" +
-                     (dir / "out").string() + "' --size 128");
+                        (dir / "out").string() + "' --size 128");
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  for (const char* f : {"overlay.png", "I_exp_source.png", "I_exp_edited.png", "I_neu.png", "M_neu.png", "fit.json",
-                        "summary.png"}) {
+  for (const char* f :
+       {"overlay.png", "I_exp_source.png", "I_exp_edited.png", "I_neu.png", "M_neu.png", "fit.json", "summary.png"}) {
     EXPECT_TRUE(fs::exists(dir / "out" / f)) << f;
   }
   std::ifstream in(dir / "out" / "fit.json");
@@ -45,10 +45,12 @@ TEST(FitCommand, WritesEveryOutputWithCameraLabelAndError) {
 
 TEST(FitCommand, BadInputsFailClearly) {
   avatar::testing::TempDir dir;
-  const auto unknown = RunCli("fit '" + Sample("grace_hopper.jpg") + "' --expr wink=1 --out-dir '" + dir.path().string() + "'");
+  const auto unknown =
+      RunCli("fit '" + Sample("grace_hopper.jpg") + "' --expr wink=1 --out-dir '" + dir.path().string() + "'");
   EXPECT_NE(unknown.exit_code, 0);
   EXPECT_NE(unknown.err.find("jawOpen"), std::string::npos) << unknown.err;  // lists the known controls
-  const auto malformed = RunCli("fit '" + Sample("grace_hopper.jpg") + "' --expr jawOpen --out-dir '" + dir.path().string() + "'");
+  const auto malformed =
+      RunCli("fit '" + Sample("grace_hopper.jpg") + "' --expr jawOpen --out-dir '" + dir.path().string() + "'");
   EXPECT_EQ(malformed.exit_code, 2) << malformed.err;
   const auto missing = RunCli("fit '" + (dir / "nothing.jpg").string() + "' --out-dir '" + dir.path().string() + "'");
   EXPECT_EQ(missing.exit_code, 1);
@@ -59,14 +61,16 @@ TEST(FitCommand, BadInputsFailClearly) {
 
 TEST(BuildMorphableCommand, SmallBuildWritesALoadableModelAndStrips) {
   avatar::testing::TempDir dir;
-  const auto r = RunCli("build-morphable --max-frames 40 --frame-stride 2 --no-photos --expression-components 24 --out '" +
-                     (dir / "m" / "model.avmm").string() + "' --strips-dir '" + (dir / "strips").string() + "'");
+  const auto r =
+      RunCli("build-morphable --max-frames 40 --frame-stride 2 --no-photos --expression-components 24 --out '" +
+             (dir / "m" / "model.avmm").string() + "' --strips-dir '" + (dir / "strips").string() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const MorphableModel m = MorphableModel::Load(dir / "m" / "model.avmm", LoadTopology(DataPaths::Resolve()));
   EXPECT_EQ(m.num_expression(), 24 + 2);
   EXPECT_TRUE(fs::exists(dir / "m" / "PROVENANCE.txt"));
   EXPECT_TRUE(fs::exists(dir / "m" / "model.avmm.json"));
-  for (const auto& name : RequiredControlNames()) EXPECT_TRUE(fs::exists(dir / "strips" / ("control_" + name + ".png"))) << name;
+  for (const auto& name : RequiredControlNames())
+    EXPECT_TRUE(fs::exists(dir / "strips" / ("control_" + name + ".png"))) << name;
 }
 
 }  // namespace

@@ -89,7 +89,8 @@ TEST(Fitter, SequenceSharesOneIdentityAndTracksExpression) {
     Beta b(6, 0.0f);
     b[0] = static_cast<float>(0.06 * std::sin(t * 0.3));
     truth.push_back(b[0]);
-    frames.push_back(ProjectLandmarks(m.Vertices(a, b), OrbitLabel(10 * std::sin(t * 0.1), 0, 0), cv::Size(512, 512), 0.5, rng));
+    frames.push_back(
+        ProjectLandmarks(m.Vertices(a, b), OrbitLabel(10 * std::sin(t * 0.1), 0, 0), cv::Size(512, 512), 0.5, rng));
   }
   RunContext ctx;
   const auto fits = FitSequence(m, frames, cv::Size(512, 512), FitOptions{}, ctx);
@@ -132,7 +133,8 @@ TEST(Fitter, ExtremePosesAndTinyImagesStayFinite) {
   const MorphableModel m = SyntheticModel(InstalledTopology(), 3, 3);
   std::mt19937 rng(9);
   for (const auto& [yaw, size] : {std::pair<double, int>{75.0, 512}, {-80.0, 512}, {0.0, 16}, {30.0, 4000}}) {
-    const face::Landmarks lm = ProjectLandmarks(m.Vertices({}, {}), OrbitLabel(yaw, 0, 0), cv::Size(size, size), 0.3 * size / 512.0, rng);
+    const face::Landmarks lm =
+        ProjectLandmarks(m.Vertices({}, {}), OrbitLabel(yaw, 0, 0), cv::Size(size, size), 0.3 * size / 512.0, rng);
     const FitResult fit = Fit(m, lm, cv::Size(size, size));
     EXPECT_TRUE(std::isfinite(fit.mean_error_px) && std::isfinite(fit.scale));
     for (float v : fit.camera) EXPECT_TRUE(std::isfinite(v));

@@ -38,7 +38,8 @@ TEST(Topology, InstalledAssetHasTheCanonicalMesh) {
   // Every triangle faces the front half-space or the side (outward orientation).
   int front = 0;
   for (const auto& tri : t.triangles) {
-    const cv::Point3f n = (t.canonical_cm[tri[1]] - t.canonical_cm[tri[0]]).cross(t.canonical_cm[tri[2]] - t.canonical_cm[tri[0]]);
+    const cv::Point3f n =
+        (t.canonical_cm[tri[1]] - t.canonical_cm[tri[0]]).cross(t.canonical_cm[tri[2]] - t.canonical_cm[tri[0]]);
     front += n.z > 0;
   }
   EXPECT_GT(front, 800);

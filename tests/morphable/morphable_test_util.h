@@ -73,8 +73,8 @@ inline MorphableModel SyntheticModel(const Topology& topo, int kid, int kexp, un
 
 // Landmarks of world vertices seen through `camera` in an image of `size`, with the facemesh
 // depth convention (pixels, relative to the mean) and Gaussian pixel noise.
-inline face::Landmarks ProjectLandmarks(const std::vector<cv::Point3f>& world, const CameraLabel& camera,
-                                        cv::Size size, double noise_px, std::mt19937& rng) {
+inline face::Landmarks ProjectLandmarks(const std::vector<cv::Point3f>& world, const CameraLabel& camera, cv::Size size,
+                                        double noise_px, std::mt19937& rng) {
   const PinholeCamera cam = PinholeCamera::FromLabel(camera);
   std::normal_distribution<double> n(0.0, noise_px);
   face::Landmarks lm;

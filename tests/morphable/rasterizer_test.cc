@@ -87,7 +87,8 @@ TEST(Rasterizer, TriangleGridCoversEveryPixelExactlyOnce) {
   const cv::Size size(72, 72);
   cv::Mat count(size, CV_32SC1, cv::Scalar(0));
   for (const auto& t : tris) {
-    ForEachCoveredPixel(v[t[0]], v[t[1]], v[t[2]], size, [&](int x, int y, double, double, double) { ++count.at<int>(y, x); });
+    ForEachCoveredPixel(v[t[0]], v[t[1]], v[t[2]], size,
+                        [&](int x, int y, double, double, double) { ++count.at<int>(y, x); });
   }
   for (int y = 0; y < size.height; ++y) {
     for (int x = 0; x < size.width; ++x) ASSERT_EQ(count.at<int>(y, x), 1) << "pixel " << x << "," << y;
@@ -162,7 +163,8 @@ TEST(Rasterizer, RendersAreDeterministicAndProjectionMatchesTheRenderCore) {
     pts[0][i][1] = verts[i].y;
     pts[0][i][2] = verts[i].z;
   }
-  const torch::Tensor proj = render::ProjectPoints(pts, render::CamerasFromLabels(LabelTensor(cam).to(torch::kFloat64)));
+  const torch::Tensor proj =
+      render::ProjectPoints(pts, render::CamerasFromLabels(LabelTensor(cam).to(torch::kFloat64)));
   const PinholeCamera pc = PinholeCamera::FromLabel(cam);
   for (int i = 0; i < 468; i += 37) {
     const cv::Point2d px = pc.ToPixel(pc.ToCamera(cv::Vec3d(verts[i].x, verts[i].y, verts[i].z)), cv::Size(1, 1));

@@ -161,7 +161,9 @@ TEST(RealFaces, SmallRebuildFromAFewHundredFramesWorks) {
     const cv::Mat bgr = LoadImageBgr(paths.Require(std::string("samples/") + name, "sample photos"));
     const auto faces = Analyzer().Detect(bgr);
     for (size_t k = 0; k < faces.size(); ++k) {
-      sources.push_back({std::string(name) + "#" + std::to_string(k), std::string(name) + "#" + std::to_string(k), false,
+      sources.push_back({std::string(name) + "#" + std::to_string(k),
+                         std::string(name) + "#" + std::to_string(k),
+                         false,
                          {Analyzer().Mesh(bgr, faces[k])}});
     }
   }
@@ -178,7 +180,8 @@ TEST(RealFaces, SmallRebuildFromAFewHundredFramesWorks) {
   built.Save(dir / "small.avmm");
   const MorphableModel loaded = MorphableModel::Load(dir / "small.avmm", topo);
   const ExpressionMeasures base = MeasureShape(loaded.Vertices({}, {}));
-  EXPECT_GT(MeasureShape(loaded.Vertices({}, loaded.ExpressionFromControls({{"jawOpen", 1.0f}}))).lip_gap, base.lip_gap + 0.1);
+  EXPECT_GT(MeasureShape(loaded.Vertices({}, loaded.ExpressionFromControls({{"jawOpen", 1.0f}}))).lip_gap,
+            base.lip_gap + 0.1);
   EXPECT_LT(MeasureShape(loaded.Vertices({}, loaded.ExpressionFromControls({{"blinkRight", 1.0f}}))).eye_open_right,
             0.5 * base.eye_open_right);
   // The small model still fits a real face closely.

@@ -105,7 +105,8 @@ TEST(Render, NeutralAndExpressionImagesFollowTheirDefinitions) {
   const RenderResult soft = RenderNeutral(m, fit, tex, size, aa);
   int fractional = 0;
   for (int y = 0; y < size.height; ++y) {
-    for (int x = 0; x < size.width; ++x) fractional += soft.mask.at<float>(y, x) > 0.0f && soft.mask.at<float>(y, x) < 1.0f;
+    for (int x = 0; x < size.width; ++x)
+      fractional += soft.mask.at<float>(y, x) > 0.0f && soft.mask.at<float>(y, x) < 1.0f;
   }
   EXPECT_GT(fractional, 10);
   EXPECT_NEAR(cv::sum(soft.mask)[0], cv::sum(neu.mask)[0], 0.05 * cv::sum(neu.mask)[0]);
