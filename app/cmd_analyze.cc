@@ -90,7 +90,12 @@ int AnalyzeImage(const AnalyzeOptions& o, RunContext& ctx) {
   const face::FaceAnalyzer analyzer(o.face);
   const double models_ms = t.Milliseconds();
   face::PortraitReport report;
-  const face::AlignedPortrait portrait = analyzer.AnalyzePortrait(image, ctx, &report);
+  face::AlignedPortrait portrait;
+  try {
+    portrait = analyzer.AnalyzePortrait(image, ctx, &report);
+  } catch (const InvalidInput& e) {
+    throw InvalidInput("'" + o.input + "': " + e.what());
+  }
   // Every face gets its landmarks and pose in the report (the selected one is already done).
   json faces = json::array();
   cv::Mat overlay = image.clone();
