@@ -9,12 +9,15 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "app/cmd_bench.h"
 #include "app/commands.h"
 #include "core/face/face_analyzer.h"
 #include "core/face/face_geometry.h"
 #include "core/io/image_io.h"
 #include "core/io/video_io.h"
 #include "core/util/error.h"
+#include "core/io/data_paths.h"
+#include "core/util/threads.h"
 #include "core/util/timer.h"
 
 namespace avatar::app {
@@ -251,6 +254,99 @@ int RunAnalyze(const std::vector<std::string>& args) {
     return RunAnalyzeImpl(options, ProcessContext());
   });
 }
+
+
+// `avatar-studio bench face`: per-stage times of AnalyzePortrait on two packaged photos and the
+// tracking rate on the first frames of a clip, with this machine's GEMM rate measured in the
+// same run (ratios stay comparable across noisy, shared machines).
+struct BenchFaceOptions {
+  // Timed repetitions per photo (after one warm-up); medians are reported.
+  int repeats = 5;
+  // Frames of the clip tracked for the video rate.
+  int frames = 100;
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("repeats", repeats, "Timed repetitions per photo (median reported)");
+    v("frames", frames, "Frames of franck.mp4 tracked for the video rate");
+    common.Visit(v);
+  }
+  void Validate() const {
+    AVATAR_CHECK_OPTION(repeats >= 1 && repeats <= 100) << "--repeats must be 1..100";
+    AVATAR_CHECK_OPTION(frames >= 1) << "--frames must be >= 1";
+    common.Validate();
+  }
+};
+
+int RunBenchFaceImpl(const BenchFaceOptions& o, RunContext& ctx) {
+  o.Validate();
+  const DataPaths paths = DataPaths::Resolve(o.common.data_dir);
+  const double gemm = MeasureGemmGflops();
+  face::FaceAnalyzerOptions fo;
+  fo.data_dir = o.common.data_dir;
+  Timer load;
+  const face::FaceAnalyzer analyzer(fo);
+  const double load_ms = load.Milliseconds();
+  std::cout << "bench face: threads " << ConfiguredThreads() << ", GEMM baseline " << gemm << " GFLOP/s, model load "
+            << load_ms << " ms\n";
+  std::cout << "photo              stage        median ms   x GEMM-GFLOP (ms*GFLOP/s/1000)\n";
+  for (const char* name : {"grace_hopper.jpg", "sample1.jpg"}) {
+    const cv::Mat image = LoadImageBgr(paths.Require(std::string("samples/") + name, "benchmark photo"));
+    std::map<std::string, std::vector<double>> times;
+    std::vector<std::string> order;
+    for (int r = 0; r <= o.repeats; ++r) {
+      face::PortraitReport report;
+      analyzer.AnalyzePortrait(image, ctx, &report);
+      if (r == 0) {
+        for (const auto& s : report.timings) order.push_back(s.stage);
+        continue;  // warm-up
+      }
+      double total = 0;
+      for (const auto& s : report.timings) {
+        times[s.stage].push_back(s.ms);
+        total += s.ms;
+      }
+      times["total"].push_back(total);
+    }
+    order.push_back("total");
+    for (const auto& stage : order) {
+      auto v = times[stage];
+      std::sort(v.begin(), v.end());
+      const double med = v[v.size() / 2];
+      std::printf("%-18s %-12s %9.2f   %8.3f\n", name, stage.c_str(), med, med * gemm / 1000.0);
+    }
+  }
+  VideoReader reader(paths.Require("samples/franck.mp4", "benchmark clip"));
+  face::FaceTracker tracker(analyzer);
+  cv::Mat frame;
+  int n = 0;
+  Timer t;
+  while (n < o.frames && reader.Read(frame)) {
+    tracker.Track(frame, n / 25.0);
+    ++n;
+  }
+  const double ms = t.Milliseconds() / std::max(1, n);
+  std::printf("franck.mp4 tracking: %d frames, %.2f ms/frame (%.1f frames/s, decode included), x GEMM %.3f\n", n, ms,
+              1000.0 / ms, ms * gemm / 1000.0);
+  return kExitOk;
+}
+
+int RunBenchFace(const std::vector<std::string>& args) {
+  return GuardedRun("bench face", [&] {
+    BenchFaceOptions options;
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio bench face [options]",
+                      "Times each face-analysis stage on packaged photos and the tracking rate on a clip.",
+                      &positionals)) {
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.empty()) << "bench face takes no positional arguments";
+    return RunBenchFaceImpl(options, ProcessContext());
+  });
+}
+
+AVATAR_REGISTER_BENCH_SUBJECT("face", "face analysis stages (detect, mesh, crop, matte, embedding) and tracking", RunBenchFace);
 
 AVATAR_REGISTER_COMMAND("analyze", "detect the face, landmarks, crop and matte of a photo or video", RunAnalyze);
 
