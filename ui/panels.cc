@@ -219,15 +219,15 @@ void ExpressionPanel::setSupported(const std::vector<std::string>& supported) {
   }
 }
 
-Expression ExpressionPanel::expression() const {
-  Expression e;
+FrameExpression ExpressionPanel::expression() const {
+  FrameExpression e;
   for (const auto& [name, slider] : sliders_) {
     if (slider->value() != 0) e.controls[name.toStdString()] = slider->value() / 100.0f;
   }
   return e;
 }
 
-void ExpressionPanel::setExpression(const Expression& expression) {
+void ExpressionPanel::setExpression(const FrameExpression& expression) {
   for (auto& [name, slider] : sliders_) {
     const QSignalBlocker block(slider);
     slider->setValue(static_cast<int>(std::lround(expression.Get(name.toStdString()) * 100.0f)));
@@ -261,7 +261,7 @@ void ExpressionPanel::loadPreset(const QString& path) {
   }
   AVATAR_CHECK_INPUT(j.is_object() && j.contains("expression") && j["expression"].is_object())
       << "expression preset '" << path.toStdString() << "' must be {\"expression\": {\"smile\": 0.5, ...}}";
-  Expression e;
+  FrameExpression e;
   for (auto it = j["expression"].begin(); it != j["expression"].end(); ++it) {
     AVATAR_CHECK_INPUT(it->is_number()) << "expression preset '" << path.toStdString() << "': '" << it.key()
                                         << "' must be a number in [0,1]";

@@ -84,9 +84,9 @@ class ExpressionPanel : public QWidget {
   explicit ExpressionPanel(QWidget* parent = nullptr);
   // Enables the sliders of `supported` (the others stay visible but disabled).
   void setSupported(const std::vector<std::string>& supported);
-  Expression expression() const;
+  FrameExpression expression() const;
   // Sets the sliders (names not in the panel are ignored) without emitting.
-  void setExpression(const Expression& expression);
+  void setExpression(const FrameExpression& expression);
   QSlider* slider(const QString& name) const;
 
   // Presets: JSON {"expression": {"smile": 0.5, ...}}. Throw Io / InvalidInput.

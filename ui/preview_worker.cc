@@ -189,6 +189,7 @@ PreviewFrame PreviewWorker::renderOne(const PreviewRequest& request, const std::
     out.driver_image = ToQImage(video_frame);
     if (driver_->analyzer) {
       frame_request.expression.coefficients = sample.expression.coefficients;
+      frame_request.expression.coefficients_absolute = sample.expression.coefficients_absolute;
       if (request.driver_pose) {
         frame_request.view.yaw += sample.pose.yaw;
         frame_request.view.pitch += sample.pose.pitch;

@@ -51,6 +51,7 @@ FrameRequest PlanFrame(const FrameSource& source, const AnimationPlan& plan, con
   r.expression = plan.base_expression;
   if (sample != nullptr) {
     r.expression.coefficients = sample->expression.coefficients;
+    r.expression.coefficients_absolute = sample->expression.coefficients_absolute;
     for (const auto& [name, value] : sample->expression.controls) r.expression.controls[name] += value;
   }
   for (auto& entry : r.expression.controls) entry.second = std::clamp(entry.second, 0.0f, 1.0f);

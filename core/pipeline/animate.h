@@ -43,7 +43,7 @@ struct AnimationPlan {
   // Stop after this many frames (0 = the whole driver).
   int64_t max_frames = 0;
   // Expression controls applied to every frame (added to what the driver gives).
-  Expression base_expression;
+  FrameExpression base_expression;
   // Copy the driver video's audio into the MP4.
   bool keep_audio = true;
 };

@@ -23,6 +23,7 @@ DrivingSample DrivingTransfer::Apply(const FrameMeasurement& m, bool smooth) {
   s.face_found = m.face_found;
   s.pose = m.pose;
   s.expression.coefficients = m.coefficients;
+  s.expression.coefficients_absolute = !options_.relative;
   if (options_.relative && neutral_.has_value()) {
     s.pose.yaw -= neutral_->pose.yaw;
     s.pose.pitch -= neutral_->pose.pitch;

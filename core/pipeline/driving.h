@@ -28,7 +28,7 @@ class VideoReader;
 // One frame of a driver.
 struct DrivingSample {
   ViewPose pose;          // Head pose of the driver (relative to its neutral frame in relative mode).
-  Expression expression;  // Expression to apply.
+  FrameExpression expression;  // Expression to apply.
   bool face_found = true; // False when the analyser found no face (the previous sample is held).
 };
 

@@ -32,22 +32,26 @@ struct ViewPose {
 
 // Named expression controls (see the morphable model's control names) with values in
 // [0,1]; missing names are 0. `coefficients` carries a raw morphable-model expression
-// vector (driving from a video) that is added before the named controls; empty = none.
-struct Expression {
+// vector (driving from a video): an offset from the portrait's own expression (relative
+// transfer), or the whole expression when `coefficients_absolute`; empty = none. The named
+// controls are added on top.
+struct FrameExpression {
   std::map<std::string, float> controls;
   std::vector<float> coefficients;
+  bool coefficients_absolute = false;
 
   float Get(const std::string& name) const {
     auto it = controls.find(name);
     return it == controls.end() ? 0.0f : it->second;
   }
-  bool operator==(const Expression& o) const { return controls == o.controls && coefficients == o.coefficients; }
+  bool operator==(const FrameExpression& o) const { return controls == o.controls && coefficients == o.coefficients && coefficients_absolute == o.coefficients_absolute;
+  }
 };
 
 // One render request.
 struct FrameRequest {
   ViewPose view;          // Camera.
-  Expression expression;  // Expression.
+  FrameExpression expression;  // Expression.
   int width = 512;        // Output width in pixels.
   int height = 512;       // Output height in pixels.
 };
@@ -80,7 +84,7 @@ class FrameSource {
   virtual bool SupportsPose() const = 0;
   // Names of the expression controls that change the picture (may be empty).
   virtual std::vector<std::string> ExpressionControls() const = 0;
-  // Length of Expression::coefficients this source understands (0 = none).
+  // Length of FrameExpression::coefficients this source understands (0 = none).
   virtual int CoefficientCount() const { return 0; }
   // The portrait's own head pose, for the "source pose" export view.
   virtual ViewPose SourcePose() const { return {}; }

@@ -1,0 +1,78 @@
+#pragma once
+// The honest pre-training avatar: the morphable face model fitted to the portrait, textured
+// from the portrait, and rendered by the CPU rasterizer at any head pose and expression.
+// Until the neural network has trained weights this is what the studio and `animate` show,
+// always labelled "Preview: morphable model (neural model not trained yet)".
+//
+// Pose convention (ViewPose): the head turns by yaw (> 0: towards the image's left), pitch
+// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera;
+// zoom moves the camera closer (distance 2.7 / zoom).
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/morphable/morphable.h"
+#include "core/pipeline/driving.h"
+#include "core/pipeline/frame_source.h"
+
+namespace avatar {
+
+// Head rotation of a view pose, as a matrix applied to world points (about the origin).
+cv::Matx33d HeadRotation(const ViewPose& pose);
+// Inverse of HeadRotation for the angles (zoom = 1). Angles in (-180, 180], pitch in [-90, 90].
+ViewPose PoseFromRotation(const cv::Matx33d& rotation);
+// The head pose of a fit: its world->camera rotation relative to the frontal camera's.
+ViewPose PoseOfFit(const morphable::FitResult& fit);
+
+class MorphablePreviewSource : public FrameSource {
+ public:
+  // `model` must outlive the source (LoadDefaultModel's models live for the process).
+  // `fit` and `texture` describe the portrait; `overlay` is drawn over the source thumbnail.
+  MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit,
+                         morphable::Texture texture, SourceOverlay overlay = {});
+
+  std::string Label() const override;
+  bool SupportsPose() const override { return true; }
+  std::vector<std::string> ExpressionControls() const override;
+  int CoefficientCount() const override;
+  ViewPose SourcePose() const override { return source_pose_; }
+  SourceOverlay Overlay() const override { return overlay_; }
+  // beta = (coefficients_absolute ? 0 : fit beta) + coefficients + sum(control * direction).
+  RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+
+  const morphable::FitResult& Fit() const { return fit_; }
+
+ private:
+  const morphable::MorphableModel& model_;
+  morphable::FitResult fit_;
+  morphable::Texture texture_;
+  SourceOverlay overlay_;
+  ViewPose source_pose_;
+};
+
+// The label every morphable preview frame carries.
+inline constexpr const char* kMorphablePreviewLabel = "Preview: morphable model (neural model not trained yet)";
+
+// Measures driving frames: tracks the face through the video and fits the morphable model
+// per frame (expression coefficients + head pose). `landmarks_of` returns the frame's
+// landmarks (or found = false); separated so the tracker can be swapped and tested.
+class MorphableFrameAnalyzer : public FrameAnalyzer {
+ public:
+  using LandmarkFn = std::function<bool(const cv::Mat& bgr, face::Landmarks* landmarks)>;
+  MorphableFrameAnalyzer(const morphable::MorphableModel& model, LandmarkFn landmarks_of,
+                         std::function<void()> reset = {});
+  FrameMeasurement Measure(const cv::Mat& bgr, RunContext& ctx) override;
+  void Reset() override {
+    if (reset_) reset_();
+  }
+
+ private:
+  const morphable::MorphableModel& model_;
+  LandmarkFn landmarks_of_;
+  std::function<void()> reset_;
+};
+
+}  // namespace avatar
