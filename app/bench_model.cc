@@ -153,10 +153,10 @@ void BenchSession(const std::string& config, int repeats, RunContext& ctx) {
   const double final_s = MedianSeconds(1, ctx, [&] {
     session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kFinal);
   });
-  std::cout << "| " << config << " | " << Fixed(first_s, 2) << " | " << Fixed(full, 3) << " | "
-            << Fixed(expression, 3) << " | " << Fixed(camera_only, 3) << " | " << Fixed(preview, 3) << " | "
-            << Fixed(final_s, 3) << " | " << Fixed(full / camera_only, 1) << "x | " << Fixed(full / preview, 1)
-            << "x | " << Fixed(rss, 0) << " MB (" << final_frame.bgr.cols << "^2 frame) |" << std::endl;
+  std::cout << "| " << config << " | " << Fixed(first_s, 2) << " | " << Fixed(full, 3) << " | " << Fixed(expression, 3)
+            << " | " << Fixed(camera_only, 3) << " | " << Fixed(preview, 3) << " | " << Fixed(final_s, 3) << " | "
+            << Fixed(full / camera_only, 1) << "x | " << Fixed(full / preview, 1) << "x | " << Fixed(rss, 0) << " MB ("
+            << final_frame.bgr.cols << "^2 frame) |" << std::endl;
 }
 
 void BenchStages(const std::string& config_name, int repeats, RunContext& ctx) {
@@ -173,10 +173,14 @@ void BenchStages(const std::string& config_name, int repeats, RunContext& ctx) {
   for (const auto& e : model->Flops()) {
     const std::string key = e.module.substr(0, e.module.find('/'));
     const std::string sub = e.module.substr(e.module.find('/') + 1);
-    if (e.module == "render") flops["render"] += e.flops;
-    else if (sub == "embed2plane") flops[key + " head"] += e.flops;
-    else if (key == "appearance") flops[e.module] += e.flops;
-    else flops[key] += e.flops;
+    if (e.module == "render")
+      flops["render"] += e.flops;
+    else if (sub == "embed2plane")
+      flops[key + " head"] += e.flops;
+    else if (key == "appearance")
+      flops[e.module] += e.flops;
+    else
+      flops[key] += e.flops;
   }
   torch::Tensor feat, tc, raster;
   const torch::Tensor matte = torch::ones({1, 1, s, s});
@@ -202,12 +206,10 @@ void BenchStages(const std::string& config_name, int repeats, RunContext& ctx) {
   const torch::Tensor points = rays.origins + depth.depth.reshape({1, g * g, 1}) * rays.directions;
   const torch::Tensor mask = torch::ones({1, g * g}, torch::kBool);
   const torch::Tensor pf = fp.flatten(2).transpose(1, 2).contiguous();
-  time_stage("appearance/rasterization", [&] {
-                      raster = RasterizePointFeatures(points, mask, pf, g, 1.0);
-                    });
+  time_stage("appearance/rasterization", [&] { raster = RasterizePointFeatures(points, mask, pf, g, 1.0); });
   time_stage("appearance/upsamplers", [&] {
-                      for (int p = 0; p < 3; ++p) model->upsamplers[p]->forward(raster.select(1, p));
-                    });
+    for (int p = 0; p < 3; ++p) model->upsamplers[p]->forward(raster.select(1, p));
+  });
   time_stage("E_e", [&] { feat = model->expression_encoder->forward(image); });
   time_stage("E_e head", [&] { model->expression_head->forward(feat); });
   render::RenderOutput out;
@@ -237,13 +239,14 @@ void BenchRasterizer(int repeats, RunContext& ctx) {
   torch::manual_seed(1);
   const int64_t grid = 128, n = grid * grid;
   // Points of a lifted depth map look like a surface: a noisy sphere cap in the unit box.
-  const torch::Tensor dir = torch::nn::functional::normalize(torch::randn({n, 3}),
-                                                             torch::nn::functional::NormalizeFuncOptions().dim(1));
+  const torch::Tensor dir =
+      torch::nn::functional::normalize(torch::randn({n, 3}), torch::nn::functional::NormalizeFuncOptions().dim(1));
   const torch::Tensor pts = (dir * 0.35 * (1 + 0.05 * torch::randn({n, 1}))).unsqueeze(0);
   const torch::Tensor feats = torch::randn({1, n, 256});
   const torch::Tensor mask = torch::ones({1, n}, torch::kBool);
   torch::InferenceMode inference;
-  const double kd = MedianSeconds(std::max(repeats, 5), ctx, [&] { RasterizePointFeatures(pts, mask, feats, grid, 1.0); });
+  const double kd =
+      MedianSeconds(std::max(repeats, 5), ctx, [&] { RasterizePointFeatures(pts, mask, feats, grid, 1.0); });
   const torch::Tensor xy = pts[0].narrow(1, 0, 2) * 2.0;
   const double search = MedianSeconds(repeats, ctx, [&] { NearestPointIndices(xy, grid); });
   Timer brute_timer;
@@ -251,9 +254,10 @@ void BenchRasterizer(int repeats, RunContext& ctx) {
   const double brute_s = brute_timer.Seconds();
   const bool same = brute == NearestPointIndices(xy, grid);
   std::cout << "Rasterization of a " << grid << "x" << grid << "-point cloud (256 features) onto three " << grid << "x"
-            << grid << " grids, features gathered into [3,256,128,128]: " << Fixed(kd * 1e3, 1) << " ms (target <= 50 ms); one plane's k-d tree search "
-            << Fixed(search * 1e3, 1) << " ms vs brute force " << Fixed(brute_s * 1e3, 0) << " ms ("
-            << Fixed(brute_s / search, 0) << "x faster, identical indices: " << (same ? "yes" : "NO") << ").\n\n";
+            << grid << " grids, features gathered into [3,256,128,128]: " << Fixed(kd * 1e3, 1)
+            << " ms (target <= 50 ms); one plane's k-d tree search " << Fixed(search * 1e3, 1) << " ms vs brute force "
+            << Fixed(brute_s * 1e3, 0) << " ms (" << Fixed(brute_s / search, 0)
+            << "x faster, identical indices: " << (same ? "yes" : "NO") << ").\n\n";
 }
 
 int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
@@ -264,7 +268,8 @@ int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
   const double gemm = MeasureGemmGflops();
   std::cout << "Model benchmark: " << threads << " threads, random weights, float32, inference mode, median of "
             << options.repeats << " runs after a warm-up.\nGEMM peak (fp32 1024^3, best of 5): " << Fixed(gemm, 1)
-            << " GFLOP/s\n\n" << std::flush;
+            << " GFLOP/s\n\n"
+            << std::flush;
   std::cout << "Session (synthetic I_exp; times in s): full = reconstruct + frame with a new expression; "
                "camera-only and preview reuse every plane.\n\n"
             << "| config | first reconstruct + final frame | full recompute | new expression | camera-only frame | "
