@@ -152,7 +152,9 @@ PosePanel::PosePanel(QWidget* parent) : QWidget(parent) {
   });
   form->addRow(reset);
   for (QSlider* s : {yaw_, pitch_, roll_, zoom_}) {
-    connect(s, &QSlider::valueChanged, this, [this] { emit poseChanged(pose()); });
+    connect(s, &QSlider::valueChanged, this, [this] {
+      if (!silent_) emit poseChanged(pose());
+    });
   }
 }
 
@@ -166,11 +168,13 @@ ViewPose PosePanel::pose() const {
 }
 
 void PosePanel::setPose(const ViewPose& pose) {
-  const QSignalBlocker a(yaw_), b(pitch_), c(roll_), d(zoom_);
+  // Not QSignalBlocker: the value read-outs must follow; only poseChanged is held back.
+  silent_ = true;
   yaw_->setValue(static_cast<int>(std::lround(pose.yaw)));
   pitch_->setValue(static_cast<int>(std::lround(pose.pitch)));
   roll_->setValue(static_cast<int>(std::lround(pose.roll)));
   zoom_->setValue(static_cast<int>(std::lround(pose.zoom * 100.0)));
+  silent_ = false;
 }
 
 // ---------------------------------------------------------------------------- ExpressionPanel
@@ -189,7 +193,9 @@ ExpressionPanel::ExpressionPanel(QWidget* parent) : QWidget(parent) {
     s->setObjectName(name);
     s->setEnabled(false);
     AddSliderRow(form, PrettyName(name), s, QString(), 0.01);
-    connect(s, &QSlider::valueChanged, this, &ExpressionPanel::expressionChanged);
+    connect(s, &QSlider::valueChanged, this, [this] {
+      if (!silent_) emit expressionChanged();
+    });
     sliders_[name] = s;
   }
   layout->addLayout(form);
@@ -228,10 +234,11 @@ FrameExpression ExpressionPanel::expression() const {
 }
 
 void ExpressionPanel::setExpression(const FrameExpression& expression) {
+  silent_ = true;  // The read-outs follow; expressionChanged is held back.
   for (auto& [name, slider] : sliders_) {
-    const QSignalBlocker block(slider);
     slider->setValue(static_cast<int>(std::lround(expression.Get(name.toStdString()) * 100.0f)));
   }
+  silent_ = false;
 }
 
 QSlider* ExpressionPanel::slider(const QString& name) const {

@@ -69,6 +69,8 @@ TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
   EXPECT_NE(r.out.find("Wrote 30 frames at 15 fps"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n"
                                                           << r.out;
+  EXPECT_NE(r.out.find("Preview: morphable model"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("timing and audio only"), std::string::npos) << "the driver was not measured\n" << r.out;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,15/1,30"), std::string::npos) << probe;
   EXPECT_NE(probe.find("audio"), std::string::npos) << "the driver's audio is missing:\n" << probe;
@@ -104,15 +106,25 @@ TEST(Animate, KeyframesDriveThePngSequence) {
       "keys": [{"time": 0, "expression": {"smile": 0}}, {"time": 1, "yaw": 20, "expression": {"smile": 1}}]})";
   const fs::path out = dir / "frames";
   const auto r = Studio("animate '" + Portrait() + "' '" + (dir / "keys.json").string() + "' -o '" + out.string() +
-                        "' --width 64 --height 48");
+                        "' --width 128 --height 96");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   int count = 0;
   for (const auto& e : fs::directory_iterator(out)) count += e.path().extension() == ".png" ? 1 : 0;
   EXPECT_EQ(count, 6);  // t = 0, 0.2, ..., 1.0.
   const cv::Mat png = cv::imread((out / "frame_000000.png").string(), cv::IMREAD_UNCHANGED);
   ASSERT_EQ(png.type(), CV_8UC4);
-  EXPECT_EQ(png.cols, 64);
-  EXPECT_EQ(png.rows, 48);
+  EXPECT_EQ(png.cols, 128);
+  EXPECT_EQ(png.rows, 96);
+  std::vector<cv::Mat> channels;
+  cv::split(png, channels);
+  const cv::Mat& alpha = channels[3];
+  const int partial = cv::countNonZero((alpha > 0) & (alpha < 255));
+  EXPECT_GT(partial, 20) << "the head's edge must have partial opacity";
+  EXPECT_GT(cv::countNonZero(alpha == 255), 500) << "the head is missing";
+  EXPECT_EQ(alpha.at<uchar>(0, 0), 0) << "the background must be transparent";
+  // The last frame (yaw 20, full smile) differs from the first.
+  const cv::Mat last = cv::imread((out / "frame_000005.png").string(), cv::IMREAD_UNCHANGED);
+  EXPECT_GT(cv::norm(png, last, cv::NORM_L1) / (128.0 * 96.0), 1.0);
 }
 
 TEST(Animate, CancelLeavesNoFileAndNoTemporaries) {

@@ -22,12 +22,15 @@
 
 #include <filesystem>
 
+#include <opencv2/imgproc.hpp>
+
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
 #include "ui/image_convert.h"
 #include "ui/job_runner.h"
 #include "ui/main_window.h"
 #include "ui/panels.h"
+#include "ui/preview_worker.h"
 #include "ui/studio.h"
 #include "ui/viewport.h"
 
@@ -143,12 +146,72 @@ class StudioTest : public QObject {
     timer.stop();
     QCOMPARE(failed.count(), 0);
     qInfo("the GUI event loop turned %d times during reconstruction", ticks_while_busy);
+    QVERIFY2(ticks_while_busy > 0, "the GUI thread blocked during reconstruction");
     QVERIFY(w.frameSource() != nullptr);
+    QVERIFY(w.frameSource()->SupportsPose());
     QSignalSpy shown(&w, &MainWindow::frameShown);
     QVERIFY(shown.wait(30000) || !w.lastFrame().isNull());
     QVERIFY(!w.viewport()->label().isEmpty());
     QVERIFY(!w.lastFrame().isNull());
+    QVERIFY2(w.viewport()->label().contains(QStringLiteral("not trained")), qPrintable(w.viewport()->label()));
     Shot(&w, QStringLiteral("studio-reconstructed"));
+  }
+
+  void yawSliderTurnsTheHeadInTheViewport() {
+    MainWindow& w = *window_;
+    QSignalSpy shown(&w, &MainWindow::frameShown);
+    Viewport* vp = w.viewport();
+    const QRect vp_rect(vp->mapTo(&w, QPoint(0, 0)), vp->size());
+    const cv::Mat before = ToMat(w.screen()->grabWindow(w.winId()).toImage().copy(vp_rect));
+    const QImage frame_before = w.lastFrame();
+    w.posePanel()->yawSlider()->setValue(35);
+    QVERIFY(WaitForFreshFrame(w, shown));
+    QTRY_VERIFY_WITH_TIMEOUT(w.lastFrame() != frame_before, 30000);
+    QTest::qWait(200);
+    const cv::Mat after = ToMat(w.screen()->grabWindow(w.winId()).toImage().copy(vp_rect));
+    cv::Mat diff;
+    cv::absdiff(before, after, diff);
+    const double mean = cv::mean(diff)[0] + cv::mean(diff)[1] + cv::mean(diff)[2];
+    qInfo("yaw 0 -> 35 degrees: mean absolute change of the on-screen viewport %.2f", mean / 3);
+    QVERIFY2(mean / 3 > 1.0, "the viewport did not change when the yaw slider moved");
+    // Drag-to-orbit reports the same camera: back to yaw 0 by dragging, then reset.
+    w.posePanel()->yawSlider()->setValue(0);
+    QVERIFY(WaitForFreshFrame(w, shown));
+  }
+
+  void expressionSliderChangesOnlyTheFace() {
+    MainWindow& w = *window_;
+    QSignalSpy shown(&w, &MainWindow::frameShown);
+    QTRY_VERIFY_WITH_TIMEOUT(w.previewWorker()->isIdle(), 30000);
+    QTest::qWait(100);
+    const cv::Mat before = ToMat(w.lastFrame());
+    const QImage alpha_before = w.lastAlpha();
+    QSlider* jaw = w.expressionPanel()->slider(QStringLiteral("jawOpen"));
+    QVERIFY(jaw->isEnabled());
+    jaw->setValue(100);
+    QVERIFY(WaitForFreshFrame(w, shown));
+    QTRY_VERIFY_WITH_TIMEOUT(w.previewWorker()->isIdle(), 30000);
+    QTest::qWait(100);
+    const cv::Mat after = ToMat(w.lastFrame());
+    QCOMPARE(after.size(), before.size());
+    const cv::Mat a0(alpha_before.height(), alpha_before.width(), CV_8UC1, const_cast<uchar*>(alpha_before.constBits()),
+                     static_cast<size_t>(alpha_before.bytesPerLine()));
+    const QImage alpha_after = w.lastAlpha();
+    const cv::Mat a1(alpha_after.height(), alpha_after.width(), CV_8UC1, const_cast<uchar*>(alpha_after.constBits()),
+                     static_cast<size_t>(alpha_after.bytesPerLine()));
+    cv::Mat diff;
+    cv::absdiff(before, after, diff);
+    cv::cvtColor(diff, diff, cv::COLOR_BGR2GRAY);
+    const cv::Mat changed = diff > 3;
+    const cv::Mat face = (a0 > 0) | (a1 > 0);
+    const int inside = cv::countNonZero(changed & face);
+    const int outside = cv::countNonZero(changed & ~face);
+    qInfo("jawOpen 0 -> 1: %d pixels changed inside the face, %d outside", inside, outside);
+    QVERIFY2(inside > 200, "the expression slider did not change the face");
+    QCOMPARE(outside, 0);
+    // Ctrl+N (Neutral) resets every control.
+    QTest::keyClick(&w, Qt::Key_N, Qt::ControlModifier);
+    QCOMPARE(jaw->value(), 0);
   }
 
   void droppedVideoBecomesTheDriverAndScrubs() {
