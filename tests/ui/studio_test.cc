@@ -154,7 +154,12 @@ class StudioTest : public QObject {
     QVERIFY(!w.viewport()->label().isEmpty());
     QVERIFY(!w.lastFrame().isNull());
     QVERIFY2(w.viewport()->label().contains(QStringLiteral("not trained")), qPrintable(w.viewport()->label()));
+    // The landmark overlay (Ctrl+L) draws the projected landmarks of the rendered head.
+    QTest::keyClick(&w, Qt::Key_L, Qt::ControlModifier);
+    QVERIFY(w.viewport()->showLandmarks());
     Shot(&w, QStringLiteral("studio-reconstructed"));
+    QTest::keyClick(&w, Qt::Key_L, Qt::ControlModifier);
+    QVERIFY(!w.viewport()->showLandmarks());
   }
 
   void yawSliderTurnsTheHeadInTheViewport() {
@@ -270,7 +275,10 @@ class StudioTest : public QObject {
     QSignalSpy cancelled(&w, &MainWindow::exportCancelled);
     QSignalSpy progress(w.jobRunner(), &JobRunner::progress);
     QVERIFY(w.startExport(out, plan));
-    QVERIFY(progress.wait(30000));
+    // Wait until frames are being written, then cancel.
+    QTRY_VERIFY_WITH_TIMEOUT(!progress.isEmpty() && progress.last().at(0).toString() == QStringLiteral("export") &&
+                                 progress.last().at(1).toDouble() > 0.02,
+                             60000);
     Shot(&w, QStringLiteral("studio-exporting"));
     QElapsedTimer clock;
     clock.start();
