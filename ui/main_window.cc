@@ -356,9 +356,14 @@ bool MainWindow::reconstruct() {
   const BackendOptions backend = backendOptions();
   preview_->setAnalyzerFactory(DrivingAnalyzers(backend));
   built_.reset();
-  return jobs_->start(kReconstructTitle, [this, portrait, backend](RunContext& ctx) {
+  const std::string name = QFileInfo(portrait_path_).fileName().toStdString();
+  return jobs_->start(kReconstructTitle, [this, portrait, backend, name](RunContext& ctx) {
     // Runs on the job thread; built_ is read on the GUI thread only after `finished`.
-    built_ = CreateFrameSource(portrait, backend, ctx);
+    try {
+      built_ = CreateFrameSource(portrait, backend, ctx);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput(name + ": " + e.what());
+    }
   });
 }
 

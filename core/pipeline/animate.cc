@@ -130,7 +130,11 @@ AnimateResult RunAnimation(const AnimateOptions& options, RunContext& ctx) {
   std::shared_ptr<const FrameSource> source;
   {
     RunContext::ProgressRange range(ctx, 0.0, 0.1);
-    source = CreateFrameSource(portrait, options.backend, ctx);
+    try {
+      source = CreateFrameSource(portrait, options.backend, ctx);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput("portrait '" + options.source + "': " + e.what());
+    }
   }
   std::unique_ptr<Driver> driver;
   if (!options.driver.empty()) {

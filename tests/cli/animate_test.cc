@@ -177,7 +177,16 @@ TEST(Animate, BadInputsGiveClearMessagesAndExitCodes) {
   r = Studio("animate '" + Portrait() + "' '" + (dir / "notes.txt").string() + "'" + out);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("notes.txt"), std::string::npos) << r.err;
-  EXPECT_EQ(dir.List(), std::vector<std::string>{"bad.json"});
+  // A photo without a face: a clear error naming the photo, nothing written.
+  cv::Mat sky(240, 320, CV_8UC3, cv::Scalar(230, 180, 120));
+  cv::imwrite((dir / "sky.png").string(), sky);
+  r = Studio("animate '" + (dir / "sky.png").string() + "' --view orbit" + out);
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.err.find("sky.png"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("face"), std::string::npos) << r.err;
+  std::vector<std::string> names = dir.List();
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"bad.json", "sky.png"}));
 }
 
 TEST(Animate, HelpDescribesTheOptions) {
