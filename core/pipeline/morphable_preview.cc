@@ -127,6 +127,33 @@ RenderedFrame MorphablePreviewSource::Render(const FrameRequest& request, RunCon
   return frame;
 }
 
+std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
+                                                      const std::vector<float>& beta) {
+  const int k = model.num_expression();
+  AVATAR_CHECK_INPUT(static_cast<int>(beta.size()) == k)
+      << "expected " << k << " expression coefficients, got " << beta.size();
+  const auto& controls = model.controls();
+  std::map<std::string, float> out;
+  if (controls.empty()) return out;
+  const int n = static_cast<int>(controls.size());
+  // Least squares in the space whitened by the expression std, so every component counts
+  // by how unusual it is; solved with SVD (control directions may be nearly dependent).
+  cv::Mat d(k, n, CV_64F), b(k, 1, CV_64F);
+  for (int r = 0; r < k; ++r) {
+    const double w = 1.0 / std::max(1e-6f, model.expression_std()[r]);
+    b.at<double>(r) = beta[r] * w;
+    for (int c = 0; c < n; ++c) d.at<double>(r, c) = controls[c].direction[r] * w;
+  }
+  cv::Mat pseudo_inverse;
+  cv::invert(d, pseudo_inverse, cv::DECOMP_SVD);  // Minimum-norm solution when under-determined.
+  const cv::Mat x = pseudo_inverse * b;
+  for (int c = 0; c < n; ++c) {
+    const double v = std::clamp(x.at<double>(c), 0.0, 1.0);
+    if (v > 0.0) out[controls[c].name] = static_cast<float>(v);
+  }
+  return out;
+}
+
 MorphableFrameAnalyzer::MorphableFrameAnalyzer(const morphable::MorphableModel& model, LandmarkFn landmarks_of,
                                                std::function<void()> reset)
     : model_(model), landmarks_of_(std::move(landmarks_of)), reset_(std::move(reset)) {}

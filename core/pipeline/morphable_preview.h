@@ -53,6 +53,12 @@ class MorphablePreviewSource : public FrameSource {
   ViewPose source_pose_;
 };
 
+// The named controls whose combination best matches expression coefficients `beta` (least
+// squares over the control directions, values clamped to [0,1]). Lets a driver measured as
+// coefficients drive a renderer that only takes named controls (the neural session).
+std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
+                                                      const std::vector<float>& beta);
+
 // The label every morphable preview frame carries.
 inline constexpr const char* kMorphablePreviewLabel = "Preview: morphable model (neural model not trained yet)";
 
