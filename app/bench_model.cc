@@ -1,0 +1,297 @@
+// `avatar-studio bench model`: per-stage time and achieved GFLOP/s of the GOHA network for the
+// paper and lite configs, the session's cached-frame vs full-recompute ratio, the rasterizer
+// against brute force, and peak memory; every ratio against baselines measured in this run.
+
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "app/cmd_bench.h"
+#include "core/model/goha_model.h"
+#include "core/model/rasterize.h"
+#include "core/pipeline/session.h"
+#include "core/render/camera.h"
+#include "core/util/error.h"
+#include "core/util/threads.h"
+#include "core/util/timer.h"
+
+namespace avatar::app {
+
+namespace {
+
+struct BenchModelOptions {
+  // Comma-separated configs: paper, lite, tiny.
+  std::string configs = "paper,lite";
+  // Timed runs per stage (after one warm-up); the median is reported.
+  int repeats = 3;
+  // Threads, data folder, verbosity.
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("configs", configs, "Comma-separated configs: paper,lite,tiny");
+    v("repeats", repeats, "Timed runs per stage (median reported)");
+    common.Visit(v);
+  }
+  void Validate() const {
+    AVATAR_CHECK_OPTION(repeats >= 1 && repeats <= 50) << "--repeats must be 1..50, got " << repeats;
+    common.Validate();
+  }
+};
+
+std::string Fixed(double value, int digits) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.*f", digits, value);
+  return buffer;
+}
+
+std::vector<std::string> Split(const std::string& text) {
+  std::vector<std::string> parts;
+  std::stringstream stream(text);
+  std::string item;
+  while (std::getline(stream, item, ',')) {
+    if (!item.empty()) parts.push_back(item);
+  }
+  return parts;
+}
+
+double PeakRssMb() {
+  struct rusage usage {};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // Linux: kilobytes
+}
+
+// Median wall time of `fn` over `repeats` runs after one warm-up.
+double MedianSeconds(int repeats, RunContext& ctx, const std::function<void()>& fn) {
+  fn();
+  std::vector<double> t;
+  for (int i = 0; i < repeats; ++i) {
+    ctx.ThrowIfCancelled();
+    Timer timer;
+    fn();
+    t.push_back(timer.Seconds());
+  }
+  std::sort(t.begin(), t.end());
+  return t[t.size() / 2];
+}
+
+// A stand-in I_exp for timing only (a shaded disk with a mouth that opens with jawOpen). The
+// morphable render itself is timed by the morphable model's own benchmark.
+class BenchExpressionSource : public ExpressionImageSource {
+ public:
+  cv::Mat Render(const Expression& expression, int size) const override {
+    float jaw = 0.0f;
+    for (const auto& [name, value] : expression.controls) {
+      if (name == "jawOpen") jaw = value;
+    }
+    cv::Mat img = cv::Mat::zeros(size, size, CV_8UC3);
+    cv::circle(img, cv::Point(size / 2, size / 2), size * 3 / 8, cv::Scalar(150, 160, 190), cv::FILLED);
+    cv::ellipse(img, cv::Point(size / 2, size * 2 / 3), cv::Size(size / 6, 1 + static_cast<int>(jaw * size / 8)), 0, 0,
+                360, cv::Scalar(30, 30, 110), cv::FILLED);
+    return img;
+  }
+  std::vector<std::string> ControlNames() const override { return {"jawOpen"}; }
+  std::string Kind() const override { return "bench"; }
+  std::string Serialize() const override { return {}; }
+};
+
+face::AlignedPortrait BenchPortrait() {
+  cv::Mat img(512, 512, CV_8UC3);
+  cv::randu(img, cv::Scalar::all(0), cv::Scalar::all(255));
+  face::AlignedPortrait p = PortraitFromAlignedImage(img);
+  p.matte = cv::Mat::zeros(512, 512, CV_32FC1);
+  cv::circle(p.matte, cv::Point(256, 256), 200, cv::Scalar(1.0f), cv::FILLED);
+  cv::rectangle(p.eye_mouth_mask, cv::Rect(170, 190, 170, 40), cv::Scalar(255), cv::FILLED);
+  return p;
+}
+
+SourceFit BenchFit() {
+  SourceFit fit;
+  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
+  for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
+  fit.expressions = std::make_shared<BenchExpressionSource>();
+  return fit;
+}
+
+void BenchSession(const std::string& config, int repeats, RunContext& ctx) {
+  SessionOptions so;
+  so.random_weights = true;
+  so.config = config;
+  Session session(so);
+  RunContext quiet;
+  const face::AlignedPortrait portrait = BenchPortrait();
+  const SourceFit fit = BenchFit();
+  // First: one reconstruct + one final frame (the peak-memory figure for the paper config).
+  Timer first;
+  Avatar avatar = session.ReconstructFromAnalysis(portrait, fit, quiet);
+  const Frame final_frame = session.Animate(avatar, {{{"jawOpen", 0.3f}}}, View{10, 5}, Preset::kFinal);
+  const double first_s = first.Seconds();
+  const double rss = PeakRssMb();
+  int step = 0;
+  const double full = MedianSeconds(repeats, ctx, [&] {
+    avatar = session.ReconstructFromAnalysis(portrait, fit, quiet);
+    session.Animate(avatar, {{{"jawOpen", 0.1f + 0.01f * static_cast<float>(++step)}}}, View{0, 0}, Preset::kStandard);
+  });
+  double yaw = 0.0;
+  const double camera_only = MedianSeconds(repeats, ctx, [&] {
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kStandard);
+  });
+  const double preview = MedianSeconds(repeats, ctx, [&] {
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kPreview);
+  });
+  const double expression = MedianSeconds(repeats, ctx, [&] {
+    session.Animate(avatar, {{{"jawOpen", 0.2f + 0.01f * static_cast<float>(++step)}}}, View{yaw, 5},
+                    Preset::kStandard);
+  });
+  const double final_s = MedianSeconds(1, ctx, [&] {
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kFinal);
+  });
+  std::cout << "| " << config << " | " << Fixed(first_s, 2) << " | " << Fixed(full, 3) << " | "
+            << Fixed(expression, 3) << " | " << Fixed(camera_only, 3) << " | " << Fixed(preview, 3) << " | "
+            << Fixed(final_s, 3) << " | " << Fixed(full / camera_only, 1) << "x | " << Fixed(full / preview, 1)
+            << "x | " << Fixed(rss, 0) << " MB (" << final_frame.bgr.cols << "^2 frame) |" << std::endl;
+}
+
+void BenchStages(const std::string& config_name, int repeats, double gemm, RunContext& ctx) {
+  torch::InferenceMode inference;
+  torch::manual_seed(0);
+  const ModelConfig c = ModelConfig::FromName(config_name);
+  GohaModel model(c);
+  model->eval();
+  const int64_t s = c.image_size, g = c.feature_size();
+  const torch::Tensor image = torch::rand({1, 3, s, s}) * 2 - 1;
+  const torch::Tensor six = torch::rand({1, 6, s, s});
+  const render::Cameras cams = render::FrontalCameras(1);
+  std::map<std::string, double> flops;
+  for (const auto& e : model->Flops()) {
+    const std::string key = e.module.substr(0, e.module.find('/'));
+    const std::string sub = e.module.substr(e.module.find('/') + 1);
+    if (e.module == "render") flops["render"] += e.flops;
+    else if (sub == "embed2plane") flops[key + " head"] += e.flops;
+    else if (key == "appearance") flops[e.module] += e.flops;
+    else flops[key] += e.flops;
+  }
+  torch::Tensor feat, tc, raster;
+  const torch::Tensor matte = torch::ones({1, 1, s, s});
+  std::vector<std::pair<std::string, double>> rows;
+  rows.emplace_back("E_c", MedianSeconds(repeats, ctx, [&] { feat = model->canonical_encoder->forward(image); }));
+  rows.emplace_back("E_c head", MedianSeconds(repeats, ctx, [&] { tc = model->canonical_head->forward(feat); }));
+  render::RenderOutput depth;
+  rows.emplace_back("appearance/depth_render",
+                    MedianSeconds(repeats, ctx, [&] { depth = model->Render(tc, cams, static_cast<int>(g)); }));
+  torch::Tensor fp;
+  rows.emplace_back("E_p", MedianSeconds(repeats, ctx, [&] { fp = model->appearance_encoder->forward(six); }));
+  const render::Rays rays = render::GenerateRays(cams, g);
+  const torch::Tensor points = rays.origins + depth.depth.reshape({1, g * g, 1}) * rays.directions;
+  const torch::Tensor mask = torch::ones({1, g * g}, torch::kBool);
+  const torch::Tensor pf = fp.flatten(2).transpose(1, 2).contiguous();
+  rows.emplace_back("appearance/rasterization", MedianSeconds(repeats, ctx, [&] {
+                      raster = RasterizePointFeatures(points, mask, pf, g, 1.0);
+                    }));
+  rows.emplace_back("appearance/upsamplers", MedianSeconds(repeats, ctx, [&] {
+                      for (int p = 0; p < 3; ++p) model->upsamplers[p]->forward(raster.select(1, p));
+                    }));
+  rows.emplace_back("E_e", MedianSeconds(repeats, ctx, [&] { feat = model->expression_encoder->forward(image); }));
+  rows.emplace_back("E_e head", MedianSeconds(repeats, ctx, [&] { model->expression_head->forward(feat); }));
+  render::RenderOutput out;
+  rows.emplace_back("render", MedianSeconds(repeats, ctx, [&] { out = model->Render(tc, cams); }));
+  double sr_flops = 0;
+  for (const auto& e : model->super_resolution->Flops()) sr_flops += e.flops;
+  flops["SR"] = sr_flops;
+  rows.emplace_back("SR", MedianSeconds(repeats, ctx, [&] { model->SuperResolve(out.rgb); }));
+  double total_t = 0, total_f = 0;
+  for (const auto& [name, t] : rows) {
+    const double f = flops.count(name) ? flops[name] : 0.0;
+    total_t += t;
+    total_f += f;
+    std::cout << "| " << config_name << " | " << name << " | " << Fixed(t * 1e3, 1) << " | " << Fixed(f / 1e9, 2)
+              << " | " << (f > 0 ? Fixed(f / t / 1e9, 1) : std::string("-")) << " | "
+              << (f > 0 ? Fixed(100.0 * f / t / 1e9 / gemm, 0) + "%" : std::string("-")) << " |" << std::endl;
+  }
+  std::cout << "| " << config_name << " | **all stages** | " << Fixed(total_t * 1e3, 1) << " | "
+            << Fixed(total_f / 1e9, 2) << " | " << Fixed(total_f / total_t / 1e9, 1) << " | "
+            << Fixed(100.0 * total_f / total_t / 1e9 / gemm, 0) << "% |" << std::endl;
+}
+
+void BenchRasterizer(int repeats, RunContext& ctx) {
+  torch::manual_seed(1);
+  const int64_t grid = 128, n = grid * grid;
+  // Points of a lifted depth map look like a surface: a noisy sphere cap in the unit box.
+  const torch::Tensor dir = torch::nn::functional::normalize(torch::randn({n, 3}),
+                                                             torch::nn::functional::NormalizeFuncOptions().dim(1));
+  const torch::Tensor pts = (dir * 0.35 * (1 + 0.05 * torch::randn({n, 1}))).unsqueeze(0);
+  const torch::Tensor feats = torch::randn({1, n, 256});
+  const torch::Tensor mask = torch::ones({1, n}, torch::kBool);
+  torch::InferenceMode inference;
+  const double kd = MedianSeconds(std::max(repeats, 5), ctx, [&] { RasterizePointFeatures(pts, mask, feats, grid, 1.0); });
+  const torch::Tensor xy = pts[0].narrow(1, 0, 2) * 2.0;
+  const double search = MedianSeconds(repeats, ctx, [&] { NearestPointIndices(xy, grid); });
+  Timer brute_timer;
+  const auto brute = NearestPointIndicesBruteForce(xy, grid);
+  const double brute_s = brute_timer.Seconds();
+  const bool same = brute == NearestPointIndices(xy, grid);
+  std::cout << "Rasterization of a " << grid << "x" << grid << "-point cloud (256 features) onto three " << grid << "x"
+            << grid << " grids, features gathered into [3,256,128,128]: " << Fixed(kd * 1e3, 1) << " ms (target <= 50 ms); one plane's k-d tree search "
+            << Fixed(search * 1e3, 1) << " ms vs brute force " << Fixed(brute_s * 1e3, 0) << " ms ("
+            << Fixed(brute_s / search, 0) << "x faster, identical indices: " << (same ? "yes" : "NO") << ").\n\n";
+}
+
+int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
+  options.Validate();
+  const auto configs = Split(options.configs);
+  for (const auto& c : configs) ModelConfig::FromName(c);
+  const int threads = ConfiguredThreads() > 0 ? ConfiguredThreads() : ConfigureThreads(options.common.threads);
+  const double gemm = MeasureGemmGflops();
+  std::cout << "Model benchmark: " << threads << " threads, random weights, float32, inference mode, median of "
+            << options.repeats << " runs after a warm-up.\nGEMM peak (fp32 1024^3, best of 5): " << Fixed(gemm, 1)
+            << " GFLOP/s\n\n" << std::flush;
+  std::cout << "Session (synthetic I_exp; times in s): full = reconstruct + frame with a new expression; "
+               "camera-only and preview reuse every plane.\n\n"
+            << "| config | first reconstruct + final frame | full recompute | new expression | camera-only frame | "
+               "camera-only preview | final frame (SR) | full / camera-only | full / preview | peak RSS so far |\n"
+            << "|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& c : configs) BenchSession(c, options.repeats, ctx);
+  std::cout << "\n";
+  BenchRasterizer(options.repeats, ctx);
+  // The machine is shared: use the best GEMM rate seen in this run as the peak.
+  const double gemm_mid = MeasureGemmGflops();
+  const double peak = std::max(gemm, gemm_mid);
+  std::cout << "GEMM peak before the stage table: " << Fixed(gemm_mid, 1) << " GFLOP/s; ratios below use "
+            << Fixed(peak, 1) << " GFLOP/s (best of the run so far).\n\n";
+  std::cout << "| config | stage | time (ms) | GFLOPs | GFLOP/s | of GEMM peak |\n|---|---|---|---|---|---|\n";
+  for (const auto& c : configs) BenchStages(c, options.repeats, peak, ctx);
+  std::cout << "\nGEMM peak after the run: " << Fixed(MeasureGemmGflops(), 1)
+            << " GFLOP/s. FLOPs are analytic (see `avatar-studio inspect`); render FLOPs count only the decoder MLP.\n";
+  return kExitOk;
+}
+
+int RunBenchModel(const std::vector<std::string>& args) {
+  return GuardedRun("bench model", [&] {
+    BenchModelOptions options;
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio bench model [options]",
+                      "Times every stage of the GOHA network (random weights), the session's cached frames\n"
+                      "against a full recompute, the rasterizer against brute force, and peak memory.",
+                      &positionals)) {
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.empty()) << "bench model takes no positional arguments";
+    return RunBenchModelImpl(options, ProcessContext());
+  });
+}
+
+}  // namespace
+
+AVATAR_REGISTER_BENCH_SUBJECT("model",
+                              "GOHA network: per-stage time and GFLOP/s vs GEMM peak, cached vs full frames, "
+                              "rasterizer, peak memory",
+                              RunBenchModel);
+
+}  // namespace avatar::app

@@ -1,0 +1,55 @@
+#include "app/cmd_reconstruct.h"
+
+#include <iostream>
+
+#include "core/io/image_io.h"
+#include "core/util/error.h"
+#include "core/util/timer.h"
+
+namespace avatar::app {
+
+void ReconstructOptions::Validate() const {
+  AVATAR_CHECK_OPTION(!input.empty()) << "missing IMAGE: give the portrait photo to reconstruct";
+  AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
+  session.Validate();
+  common.Validate();
+}
+
+int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
+  options.Validate();
+  SessionOptions so = options.session;
+  so.data_dir = options.common.data_dir;
+  Timer timer;
+  Session session(so);
+  const ModelInfo info = session.Info();
+  if (so.random_weights && so.checkpoint.empty()) {
+    std::cerr << "warning: running the UNTRAINED network with random weights (config " << info.config_name
+              << ", seed " << so.seed << "); the avatar will look like noise.\n";
+  }
+  const cv::Mat image = LoadImageBgr(options.input);
+  const Avatar avatar = session.Reconstruct(image, ctx);
+  session.SaveAvatar(avatar, options.output);
+  std::cout << "Reconstructed '" << options.input << "' with model " << info.model_id << " (config "
+            << info.config_name << ") in " << timer.Seconds() << " s and wrote '" << options.output << "'.\n";
+  return kExitOk;
+}
+
+int RunReconstruct(const std::vector<std::string>& args) {
+  return GuardedRun("reconstruct", [&] {
+    ReconstructOptions options;
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio reconstruct IMAGE -o FILE.avatar [options]",
+                      "Finds the face, fits the morphable model and reconstructs the avatar's tri-planes\n"
+                      "(canonical + appearance), saved for `avatar-studio render` and the studio.",
+                      &positionals)) {
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.size() <= 1) << "expected one IMAGE, got " << positionals.size() << " arguments";
+    if (!positionals.empty()) options.input = positionals[0];
+    return RunReconstructImpl(options, ProcessContext());
+  });
+}
+
+AVATAR_REGISTER_COMMAND("reconstruct", "reconstruct an avatar from a portrait", RunReconstruct);
+
+}  // namespace avatar::app

@@ -1,0 +1,83 @@
+#pragma once
+// `avatar-studio reconstruct IMAGE -o FILE.avatar`: face analysis, morphable fit and the GOHA
+// reconstruction (T_c, T_p), saved as an avatar file for `render` and the studio.
+// `avatar-studio render FILE.avatar [--yaw --pitch --roll] [--expr name=value ...] [--preset]
+// -o out.png [--alpha] [--depth]`: one frame of an avatar.
+
+#include <string>
+#include <vector>
+
+#include "app/commands.h"
+#include "core/pipeline/session.h"
+
+namespace avatar::app {
+
+struct ReconstructOptions {
+  // Portrait photo.
+  std::string input;
+  // Avatar file to write.
+  std::string output = "portrait.avatar";
+  // Model selection.
+  SessionOptions session;
+  // Threads, data folder, verbosity.
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("output", output, "Avatar file to write (.avatar)", 'o');
+    session.Visit(v);
+    common.Visit(v);
+  }
+  void Validate() const;
+};
+
+int RunReconstruct(const std::vector<std::string>& args);
+int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx);
+
+struct RenderCommandOptions {
+  // Avatar file to render.
+  std::string input;
+  // Output image (.png; .jpg without --alpha).
+  std::string output = "avatar.png";
+  // Camera yaw in degrees.
+  double yaw = 0.0;
+  // Camera pitch in degrees (-90..90 exclusive).
+  double pitch = 0.0;
+  // Camera roll in degrees.
+  double roll = 0.0;
+  // Expression controls, name=value (repeatable).
+  std::vector<std::string> expr;
+  // preview, standard or final.
+  std::string preset = "final";
+  // Write RGBA with the rendered opacity as alpha.
+  bool alpha = false;
+  // Also write the depth map as a 16-bit PNG next to the output (<name>_depth.png).
+  bool depth = false;
+  // Model selection.
+  SessionOptions session;
+  // Threads, data folder, verbosity.
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("output", output, "Output image", 'o');
+    v("yaw", yaw, "Camera yaw in degrees (positive: camera moves to the subject's left)");
+    v("pitch", pitch, "Camera pitch in degrees (positive: camera above)");
+    v("roll", roll, "Camera roll in degrees");
+    v("expr", expr, "Expression control name=value (repeatable), e.g. --expr jawOpen=0.5");
+    v("preset", preset, "preview (fast, small), standard (render size) or final (with super-resolution)");
+    v("alpha", alpha, "Write RGBA with the rendered opacity as alpha");
+    v("depth", depth, "Also write <output>_depth.png (16-bit, near 2.25 = 0, far 3.3 = 65535)");
+    session.Visit(v);
+    common.Visit(v);
+  }
+  void Validate() const;
+};
+
+int RunRender(const std::vector<std::string>& args);
+int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx);
+
+// "name=value" strings -> Expression; throws InvalidOptions on malformed entries.
+Expression ParseExpressionFlags(const std::vector<std::string>& entries);
+
+}  // namespace avatar::app

@@ -1,0 +1,98 @@
+#include <cmath>
+#include <iostream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "app/cmd_reconstruct.h"
+#include "core/io/image_io.h"
+#include "core/util/error.h"
+#include "core/util/timer.h"
+
+namespace avatar::app {
+
+Expression ParseExpressionFlags(const std::vector<std::string>& entries) {
+  Expression e;
+  for (const auto& entry : entries) {
+    const size_t eq = entry.find('=');
+    AVATAR_CHECK_OPTION(eq != std::string::npos && eq > 0 && eq + 1 < entry.size())
+        << "--expr expects name=value, got '" << entry << "'";
+    float value = 0.0f;
+    options::ParseValue("--expr " + entry.substr(0, eq), entry.substr(eq + 1), value);
+    AVATAR_CHECK_OPTION(std::isfinite(value)) << "--expr " << entry << ": value must be finite";
+    e.controls[entry.substr(0, eq)] = value;
+  }
+  return e;
+}
+
+void RenderCommandOptions::Validate() const {
+  AVATAR_CHECK_OPTION(!input.empty()) << "missing FILE.avatar: give the avatar to render";
+  AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
+  PresetFromName(preset);
+  ParseExpressionFlags(expr);
+  session.Validate();
+  common.Validate();
+}
+
+int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
+  options.Validate();
+  SessionOptions so = options.session;
+  so.data_dir = options.common.data_dir;
+  const AvatarFileInfo file = ReadAvatarFileInfo(options.input);
+  if (so.random_weights && so.checkpoint.empty() && file.model_id.rfind("random:", 0) == 0) {
+    // The avatar names its random weights (random:<config>:<seed>): rebuild exactly those.
+    const size_t a = file.model_id.find(':'), b = file.model_id.rfind(':');
+    so.config = file.model_id.substr(a + 1, b - a - 1);
+    so.seed = std::stoi(file.model_id.substr(b + 1));
+  }
+  Timer timer;
+  Session session(so);
+  const Avatar avatar = session.LoadAvatar(options.input);
+  View view;
+  view.yaw = options.yaw;
+  view.pitch = options.pitch;
+  view.roll = options.roll;
+  const Frame frame = session.Animate(avatar, ParseExpressionFlags(options.expr), view, PresetFromName(options.preset), &ctx);
+  cv::Mat out = frame.bgr;
+  if (options.alpha) {
+    cv::Mat alpha;
+    frame.opacity.convertTo(alpha, CV_8U, 255.0);
+    cv::Mat channels[4];
+    cv::split(frame.bgr, channels);
+    channels[3] = alpha;
+    cv::merge(channels, 4, out);
+  }
+  SaveImage(options.output, out);
+  std::cout << "Rendered '" << options.input << "' (" << frame.bgr.cols << "x" << frame.bgr.rows << ", preset "
+            << options.preset << ") to '" << options.output << "'";
+  if (options.depth) {
+    std::filesystem::path depth_path = options.output;
+    depth_path.replace_filename(depth_path.stem().string() + "_depth.png");
+    cv::Mat depth16;
+    frame.depth.convertTo(depth16, CV_16U, 65535.0 / (3.3 - 2.25), -2.25 * 65535.0 / (3.3 - 2.25));
+    SaveImage(depth_path, depth16);
+    std::cout << " and its depth to '" << depth_path.string() << "'";
+  }
+  std::cout << " in " << timer.Seconds() << " s.\n";
+  return kExitOk;
+}
+
+int RunRender(const std::vector<std::string>& args) {
+  return GuardedRun("render", [&] {
+    RenderCommandOptions options;
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args,
+                      "avatar-studio render FILE.avatar [--yaw D --pitch D --roll D] [--expr name=value ...] "
+                      "[--preset preview|standard|final] -o out.png [--alpha] [--depth]",
+                      "Renders one frame of an avatar from a camera and an expression.", &positionals)) {
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.size() <= 1) << "expected one FILE.avatar, got " << positionals.size()
+                                                 << " arguments";
+    if (!positionals.empty()) options.input = positionals[0];
+    return RunRenderImpl(options, ProcessContext());
+  });
+}
+
+AVATAR_REGISTER_COMMAND("render", "render an avatar from a camera and expression", RunRender);
+
+}  // namespace avatar::app

@@ -1,0 +1,210 @@
+#pragma once
+// The Session: the one door through which the GUI and the CLI use the GOHA network.
+//
+//   Session session(options);                      // loads the model (or random weights on request)
+//   Avatar avatar = session.Reconstruct(bgr, ctx); // face analysis, fit, T_c and T_p (cached in the avatar)
+//   Frame f = session.Animate(avatar, {{"jawOpen", 0.6f}}, View{20, 5}, Preset::kPreview);
+//
+// What Animate recomputes (instrumented by Counters()):
+//   - a new view only: no encoder; one volume render of the cached planes T_c + T_p + T_e;
+//   - a new expression: the morphable render I_exp and E_e (T_e), then the render;
+//   - super-resolution only for Preset::kFinal.
+// T_p depends on the source alone because the lifting depth is rendered from T_c (paper).
+//
+// Thread safety: a Session may be used from several threads at once. Reconstruct and Animate
+// only read the network's parameters (inference mode inside each call, so any worker thread
+// works) and guard the session's expression cache with a mutex. An Avatar is immutable after
+// Reconstruct/LoadAvatar and may be shared between threads (copies share the state).
+// No LibTorch types appear in this header.
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/face/face_types.h"
+#include "core/util/run_context.h"
+
+namespace avatar {
+
+// Expression controls by name (e.g. jawOpen, smile) -> value, usually in [0,1] (or [-1,1] for
+// signed controls). An empty map is the neutral expression.
+struct Expression {
+  std::map<std::string, float> controls;
+  // Canonical text form ("jawOpen=0.5,smile=0.2"), used as the cache key.
+  std::string Key() const;
+};
+
+// Renders I_exp: the source identity with a target expression at the fixed frontal camera, black
+// background (the morphable model's job; tests plug in synthetic sources).
+class ExpressionImageSource {
+ public:
+  virtual ~ExpressionImageSource() = default;
+  // [size,size] CV_8UC3 BGR. Throws InvalidInput for unknown control names. Must be thread-safe.
+  virtual cv::Mat Render(const Expression& expression, int size) const = 0;
+  // Names of the controls Render understands.
+  virtual std::vector<std::string> ControlNames() const = 0;
+  // Type tag and state, stored in avatar files (see RegisterExpressionSourceLoader).
+  virtual std::string Kind() const = 0;
+  virtual std::string Serialize() const = 0;
+};
+
+// Rebuilds a source from Serialize() bytes when an avatar file is loaded.
+using ExpressionSourceLoader = std::shared_ptr<const ExpressionImageSource> (*)(const std::string& bytes);
+// Registers the loader of a Kind() (call once at start-up, e.g. from a static initialiser). Returns true.
+bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader);
+
+// Camera looking at the head from an orbit (degrees; EG3D conventions as in core/render/camera.h).
+struct View {
+  double yaw = 0.0;    // positive: camera moves towards the subject's left (+x)
+  double pitch = 0.0;  // positive: camera above, looking down; |pitch| < 90
+  double roll = 0.0;   // about the viewing axis
+  double radius = 2.7; // distance to the look-at point
+};
+
+enum class Preset {
+  kPreview,   // small render (min(64, render_size)), no super-resolution: interactive
+  kStandard,  // the config's render size, no super-resolution
+  kFinal,     // the config's render size + super-resolution to sr_size
+};
+// "preview", "standard", "final"; throws InvalidOptions otherwise.
+Preset PresetFromName(const std::string& name);
+const char* PresetName(Preset preset);
+
+struct Frame {
+  cv::Mat bgr;      // [H,W] CV_8UC3
+  cv::Mat opacity;  // [H,W] CV_32FC1 in [0,1] (bilinear-upsampled from the render for kFinal)
+  cv::Mat depth;    // [H,W] CV_32FC1 expected depth along the ray (far plane 3.3 for empty rays)
+  int render_size = 0;  // side of the volume render behind this frame
+  bool super_resolved = false;
+};
+
+struct SessionOptions {
+  // Model checkpoint (.ckpt); "" = <data dir>/models/goha.ckpt.
+  std::string checkpoint;
+  // Run the untrained network with random weights when no checkpoint is given (explicit opt-in).
+  bool random_weights = false;
+  // Config of the random-weight network: paper, lite or tiny (a checkpoint carries its own).
+  std::string config = "lite";
+  // Seed of the random weights (avatars remember it: they only load into the same weights).
+  int seed = 0;
+  // Folder with installed data ("" = AVATAR_DATA_DIR or the default cache).
+  std::string data_dir;
+  // Expression planes kept in the session's cache (LRU).
+  int expression_cache = 16;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("checkpoint", checkpoint, "Model checkpoint file (default: <data dir>/models/goha.ckpt)");
+    v("random_weights", random_weights, "Run the untrained network with random weights (no model installed)");
+    v("config", config, "Network size with --random-weights: paper, lite or tiny");
+    v("seed", seed, "Seed of the random weights");
+    v("expression_cache", expression_cache, "Expression tri-planes kept in memory");
+  }
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+// Times each module ran since the session started (or ResetCounters()).
+struct SessionCounters {
+  int64_t canonical_encoder = 0;
+  int64_t appearance_encoder = 0;
+  int64_t expression_encoder = 0;
+  int64_t rasterizations = 0;
+  int64_t renders = 0;
+  int64_t super_resolutions = 0;
+  int64_t expression_images = 0;  // morphable renders of I_exp
+};
+
+// Description of the loaded network (for inspect and the GUI's about box).
+struct ModelInfo {
+  std::string config_name;
+  std::string config_json;
+  std::string model_id;  // checkpoint fingerprint or "random:<config>:<seed>"
+  int64_t parameters = 0;
+  int64_t step = 0;
+  std::string data_provenance;
+  int image_size = 0, render_size = 0, sr_size = 0;
+};
+
+struct AvatarState;  // defined in session.cc
+
+// A reconstructed avatar: immutable, cheap to copy (shared state).
+class Avatar {
+ public:
+  Avatar() = default;
+  bool valid() const { return state_ != nullptr; }
+  // The aligned source portrait (BGR 512 crop on black).
+  cv::Mat SourceImage() const;
+  // Expression controls the avatar's expression source understands.
+  std::vector<std::string> ControlNames() const;
+  // The source camera label (25 floats).
+  std::array<float, 25> SourceCamera() const;
+  const AvatarState* state() const { return state_.get(); }
+
+ private:
+  friend class Session;
+  std::shared_ptr<const AvatarState> state_;
+};
+
+// Inputs of the network part of reconstruction besides the aligned portrait.
+struct SourceFit {
+  std::array<float, 25> camera{};  // source camera C_s as an EG3D label
+  std::shared_ptr<const ExpressionImageSource> expressions;  // I_exp renderer for this identity
+};
+
+class Session {
+ public:
+  // Loads the checkpoint (or builds random weights when asked). Throws MissingData when no
+  // model is installed and random weights were not requested, ModelLoad for a bad checkpoint,
+  // InvalidOptions for bad options.
+  explicit Session(const SessionOptions& options);
+  ~Session();
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  ModelInfo Info() const;
+
+  // The network part: T_c from the portrait, the lifting depth and T_p at the source camera.
+  // Throws InvalidInput (bad portrait), Cancelled.
+  Avatar ReconstructFromAnalysis(const face::AlignedPortrait& portrait, const SourceFit& fit, RunContext& ctx) const;
+  // Face analysis + morphable fit + ReconstructFromAnalysis. Throws InvalidInput (no face),
+  // MissingData (face models not installed), Cancelled.
+  Avatar Reconstruct(const cv::Mat& bgr, RunContext& ctx) const;
+
+  // One frame. Throws InvalidInput (invalid avatar, unknown control, bad view), Cancelled.
+  Frame Animate(const Avatar& avatar, const Expression& expression, const View& view, Preset preset,
+                RunContext* ctx = nullptr) const;
+
+  // Avatar files (.avatar): planes, camera, source image, expression source, model id.
+  // Save throws Io; Load throws Io / ModelLoad (corrupt file, other model or config).
+  void SaveAvatar(const Avatar& avatar, const std::filesystem::path& path) const;
+  Avatar LoadAvatar(const std::filesystem::path& path) const;
+
+  SessionCounters Counters() const;
+  void ResetCounters() const;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+// Which model an avatar file was made with (from its metadata).
+struct AvatarFileInfo {
+  std::string model_id;     // as ModelInfo::model_id
+  std::string config_name;  // e.g. "lite"
+};
+// Throws Io (missing) or ModelLoad (not an avatar file, damaged).
+AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path);
+
+// BGR8 portrait -> AlignedPortrait-like input for callers that already have an aligned crop
+// (tests, tools): resized to 512, matte all ones, empty eye/mouth mask.
+face::AlignedPortrait PortraitFromAlignedImage(const cv::Mat& bgr);
+
+}  // namespace avatar

@@ -1,0 +1,307 @@
+// Session: reconstruct once, animate many frames; caching (by counters), presets, avatar files,
+// errors, cancellation and concurrent use. Tiny random-weight network, synthetic inputs.
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <thread>
+
+#include <opencv2/imgproc.hpp>
+
+#include "common/temp_dir.h"
+#include "core/io/atomic_file.h"
+#include "core/model/goha_model.h"
+#include "core/pipeline/session.h"
+#include "core/render/camera.h"
+#include "core/util/error.h"
+#include "synthetic_expression_source.h"
+
+namespace avatar {
+namespace {
+
+using avatar::testing::SyntheticExpressionSource;
+using avatar::testing::TempDir;
+
+const bool kLoaderRegistered =
+    RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
+
+SessionOptions TinyOptions(int seed = 0) {
+  SessionOptions o;
+  o.random_weights = true;
+  o.config = "tiny";
+  o.seed = seed;
+  return o;
+}
+
+cv::Mat SyntheticPortrait(int size = 512) {
+  cv::Mat img = cv::Mat::zeros(size, size, CV_8UC3);
+  cv::circle(img, cv::Point(size / 2, size / 2), size / 3, cv::Scalar(120, 150, 200), cv::FILLED);
+  cv::circle(img, cv::Point(size * 2 / 5, size * 2 / 5), size / 20, cv::Scalar(40, 40, 40), cv::FILLED);
+  cv::circle(img, cv::Point(size * 3 / 5, size * 2 / 5), size / 20, cv::Scalar(40, 40, 40), cv::FILLED);
+  return img;
+}
+
+SourceFit FrontalFit() {
+  SourceFit fit;
+  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
+  for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
+  fit.expressions = std::make_shared<SyntheticExpressionSource>();
+  return fit;
+}
+
+Avatar MakeAvatar(const Session& session) {
+  RunContext ctx;
+  face::AlignedPortrait portrait = PortraitFromAlignedImage(SyntheticPortrait());
+  portrait.eye_mouth_mask = cv::Mat::zeros(512, 512, CV_8UC1);
+  cv::rectangle(portrait.eye_mouth_mask, cv::Rect(180, 180, 150, 40), cv::Scalar(255), cv::FILLED);
+  portrait.matte = cv::Mat::zeros(512, 512, CV_32FC1);
+  cv::circle(portrait.matte, cv::Point(256, 256), 200, cv::Scalar(1.0f), cv::FILLED);
+  return session.ReconstructFromAnalysis(portrait, FrontalFit(), ctx);
+}
+
+bool SameMat(const cv::Mat& a, const cv::Mat& b) {
+  return a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0.0;
+}
+
+TEST(Session, CachingRunsOnlyWhatChanged) {
+  ASSERT_TRUE(kLoaderRegistered);
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  SessionCounters c = session.Counters();
+  EXPECT_EQ(c.canonical_encoder, 1);
+  EXPECT_EQ(c.appearance_encoder, 1);
+  EXPECT_EQ(c.rasterizations, 1);
+  EXPECT_EQ(c.expression_encoder, 0);
+  EXPECT_EQ(c.renders, 1);  // the lifting depth render
+
+  session.ResetCounters();
+  session.Animate(avatar, {}, View{}, Preset::kPreview);
+  c = session.Counters();
+  EXPECT_EQ(c.expression_images, 1);
+  EXPECT_EQ(c.expression_encoder, 1);
+  EXPECT_EQ(c.renders, 1);
+
+  // Camera-only changes: zero encoders.
+  session.ResetCounters();
+  for (double yaw : {-30.0, 0.0, 25.0, 60.0}) session.Animate(avatar, {}, View{yaw, 10.0}, Preset::kPreview);
+  c = session.Counters();
+  EXPECT_EQ(c.canonical_encoder + c.appearance_encoder + c.expression_encoder, 0);
+  EXPECT_EQ(c.expression_images, 0);
+  EXPECT_EQ(c.rasterizations, 0);
+  EXPECT_EQ(c.renders, 4);
+  EXPECT_EQ(c.super_resolutions, 0);
+
+  // Expression change: only E_e (and the expression image).
+  session.ResetCounters();
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, View{10.0}, Preset::kPreview);
+  c = session.Counters();
+  EXPECT_EQ(c.expression_encoder, 1);
+  EXPECT_EQ(c.expression_images, 1);
+  EXPECT_EQ(c.canonical_encoder + c.appearance_encoder + c.rasterizations, 0);
+
+  // An explicit zero is the neutral expression (cache hit), SR only for the final preset.
+  session.ResetCounters();
+  session.Animate(avatar, {{{"jawOpen", 0.0f}}}, View{}, Preset::kStandard);
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, View{}, Preset::kFinal);
+  c = session.Counters();
+  EXPECT_EQ(c.expression_encoder, 0);
+  EXPECT_EQ(c.super_resolutions, 1);
+  EXPECT_EQ(c.renders, 2);
+}
+
+TEST(Session, FramesHaveTheRightSizesAndRanges) {
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  const ModelConfig c = ModelConfig::Tiny();
+  for (Preset preset : {Preset::kPreview, Preset::kStandard, Preset::kFinal}) {
+    const Frame f = session.Animate(avatar, {{{"smile", 0.5f}}}, View{20, -10, 5}, preset);
+    const int side = preset == Preset::kFinal ? c.sr_size : c.render_size;
+    EXPECT_EQ(f.bgr.type(), CV_8UC3);
+    EXPECT_EQ(f.bgr.rows, side);
+    EXPECT_EQ(f.bgr.cols, side);
+    EXPECT_EQ(f.opacity.size(), f.bgr.size());
+    EXPECT_EQ(f.depth.size(), f.bgr.size());
+    EXPECT_EQ(f.super_resolved, preset == Preset::kFinal);
+    double lo, hi;
+    cv::minMaxLoc(f.opacity, &lo, &hi);
+    EXPECT_GE(lo, 0.0);
+    EXPECT_LE(hi, 1.0 + 1e-6);
+    cv::minMaxLoc(f.depth, &lo, &hi);
+    EXPECT_GE(lo, 2.25 - 1e-4);
+    EXPECT_LE(hi, 3.3 + 1e-4);
+    EXPECT_TRUE(cv::checkRange(f.depth));
+  }
+}
+
+TEST(Session, DeterministicAndExpressionSensitive) {
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  const Frame a = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard);
+  const Frame b = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard);
+  EXPECT_TRUE(SameMat(a.bgr, b.bgr));
+  EXPECT_TRUE(SameMat(a.depth, b.depth));
+  // A fresh session (cache cold) gives the same frame.
+  Session other(TinyOptions());
+  const Avatar avatar2 = MakeAvatar(other);
+  EXPECT_TRUE(SameMat(a.bgr, other.Animate(avatar2, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard).bgr));
+  // Changing the expression changes the frame (T_e differs), even with random weights.
+  const Frame n = session.Animate(avatar, {}, View{15}, Preset::kStandard);
+  EXPECT_GT(cv::norm(a.opacity, n.opacity, cv::NORM_INF) + cv::norm(a.bgr, n.bgr, cv::NORM_INF), 0.0);
+}
+
+TEST(Session, AvatarFileRoundTripGivesIdenticalFrames) {
+  TempDir dir;
+  Session session(TinyOptions(3));
+  const Avatar avatar = MakeAvatar(session);
+  session.SaveAvatar(avatar, dir.path() / "a.avatar");
+  const Avatar loaded = session.LoadAvatar(dir.path() / "a.avatar");
+  ASSERT_TRUE(loaded.valid());
+  EXPECT_EQ(loaded.SourceCamera(), avatar.SourceCamera());
+  EXPECT_TRUE(SameMat(loaded.SourceImage(), avatar.SourceImage()));
+  EXPECT_EQ(loaded.ControlNames(), avatar.ControlNames());
+  const Frame a = session.Animate(avatar, {{{"smile", 0.3f}}}, View{-20, 5}, Preset::kFinal);
+  const Frame b = session.Animate(loaded, {{{"smile", 0.3f}}}, View{-20, 5}, Preset::kFinal);
+  EXPECT_TRUE(SameMat(a.bgr, b.bgr));
+  EXPECT_TRUE(SameMat(a.opacity, b.opacity));
+  // Saving the loaded avatar again reproduces the file byte for byte.
+  session.SaveAvatar(loaded, dir.path() / "b.avatar");
+  EXPECT_EQ(ReadFileBytes(dir.path() / "a.avatar"), ReadFileBytes(dir.path() / "b.avatar"));
+}
+
+TEST(Session, AvatarFilesFromOtherModelsOrDamagedAreRejected) {
+  TempDir dir;
+  Session session(TinyOptions(3));
+  const Avatar avatar = MakeAvatar(session);
+  session.SaveAvatar(avatar, dir.path() / "a.avatar");
+  Session other_seed(TinyOptions(4));
+  EXPECT_THROW(other_seed.LoadAvatar(dir.path() / "a.avatar"), ModelLoad);
+  EXPECT_THROW(other_seed.Animate(avatar, {}, View{}, Preset::kPreview), InvalidInput);
+  std::string bytes = ReadFileBytes(dir.path() / "a.avatar");
+  WriteBytesAtomically(dir.path() / "cut.avatar", bytes.substr(0, bytes.size() / 3));
+  EXPECT_THROW(session.LoadAvatar(dir.path() / "cut.avatar"), ModelLoad);
+  // A model checkpoint is not an avatar.
+  GohaModel model(ModelConfig::Tiny());
+  SaveModelCheckpoint(dir.path() / "m.ckpt", model, {});
+  EXPECT_THROW(session.LoadAvatar(dir.path() / "m.ckpt"), ModelLoad);
+  EXPECT_THROW(session.LoadAvatar(dir.path() / "missing.avatar"), Io);
+}
+
+TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
+  TempDir dir;
+  torch::manual_seed(7);
+  GohaModel model(ModelConfig::Tiny());
+  SaveModelCheckpoint(dir.path() / "m.ckpt", model, {});
+  SessionOptions from_file;
+  from_file.checkpoint = (dir.path() / "m.ckpt").string();
+  Session a(from_file);
+  Session b(TinyOptions(7));
+  EXPECT_EQ(a.Info().parameters, b.Info().parameters);
+  EXPECT_EQ(a.Info().config_name, "tiny");
+  EXPECT_EQ(a.Info().model_id.rfind("ckpt:", 0), 0u);
+  const Frame fa = a.Animate(MakeAvatar(a), {{{"jawOpen", 0.4f}}}, View{30}, Preset::kFinal);
+  const Frame fb = b.Animate(MakeAvatar(b), {{{"jawOpen", 0.4f}}}, View{30}, Preset::kFinal);
+  EXPECT_TRUE(SameMat(fa.bgr, fb.bgr));
+}
+
+TEST(Session, NoModelInstalledSaysSoUnlessRandomWeightsAreRequested) {
+  TempDir dir;
+  SessionOptions o;
+  o.data_dir = dir.path().string();
+  try {
+    Session s(o);
+    ADD_FAILURE() << "expected MissingData";
+  } catch (const MissingData& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("No GOHA model is installed"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("--random-weights"), std::string::npos) << msg;
+  }
+  SessionOptions bad = TinyOptions();
+  bad.config = "huge";
+  EXPECT_THROW(Session{bad}, InvalidOptions);
+}
+
+TEST(Session, BadInputsGiveTypedErrors) {
+  Session session(TinyOptions());
+  RunContext ctx;
+  EXPECT_THROW(session.Animate(Avatar{}, {}, View{}, Preset::kPreview), InvalidInput);
+  face::AlignedPortrait empty;
+  EXPECT_THROW(session.ReconstructFromAnalysis(empty, FrontalFit(), ctx), InvalidInput);
+  SourceFit nan_fit = FrontalFit();
+  nan_fit.camera[3] = std::nanf("");
+  EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), nan_fit, ctx),
+               InvalidInput);
+  SourceFit bad_fit = FrontalFit();
+  bad_fit.camera[15] = 2.0f;  // last cam2world row must be (0,0,0,1)
+  EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), bad_fit, ctx),
+               InvalidInput);
+  const Avatar avatar = MakeAvatar(session);
+  EXPECT_THROW(session.Animate(avatar, {{{"frown", 1.0f}}}, View{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(avatar, {}, View{0, 90}, Preset::kPreview), InvalidOptions);
+  EXPECT_THROW(session.Animate(avatar, {}, View{0, 0, 0, -1}, Preset::kPreview), InvalidOptions);
+  EXPECT_THROW(PresetFromName("ultra"), InvalidOptions);
+  EXPECT_THROW(session.Reconstruct(cv::Mat(), ctx), InvalidInput);
+}
+
+TEST(Session, HardCasesStayFinite) {
+  Session session(TinyOptions());
+  RunContext ctx;
+  // A tiny 8x8 portrait and an all-black one with an empty matte.
+  const Avatar small = session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait(8)), FrontalFit(), ctx);
+  face::AlignedPortrait black = PortraitFromAlignedImage(cv::Mat::zeros(512, 512, CV_8UC3));
+  black.matte = cv::Mat::zeros(512, 512, CV_32FC1);
+  const Avatar dark = session.ReconstructFromAnalysis(black, FrontalFit(), ctx);
+  for (const Avatar* a : {&small, &dark}) {
+    for (const View& v : {View{180, 0}, View{-179, 89.5}, View{0, -89.5, 180}, View{45, 0, 0, 0.3}}) {
+      const Frame f = session.Animate(*a, {{{"jawOpen", 5.0f}, {"smile", -3.0f}}}, v, Preset::kFinal);
+      EXPECT_TRUE(cv::checkRange(f.opacity));
+      EXPECT_TRUE(cv::checkRange(f.depth));
+    }
+  }
+}
+
+TEST(Session, CancellationStopsReconstructAndAnimate) {
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  RunContext ctx;
+  ctx.RequestCancel();
+  EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), FrontalFit(), ctx),
+               Cancelled);
+  EXPECT_THROW(session.Animate(avatar, {}, View{}, Preset::kPreview, &ctx), Cancelled);
+  // Progress is reported while reconstructing.
+  std::vector<double> fractions;
+  RunContext progress([&](const Progress& p) { fractions.push_back(p.fraction); });
+  session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), FrontalFit(), progress);
+  ASSERT_GE(fractions.size(), 2u);
+  EXPECT_DOUBLE_EQ(fractions.back(), 1.0);
+}
+
+TEST(Session, ConcurrentAnimateMatchesSerial) {
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  std::vector<View> views;
+  for (int i = 0; i < 6; ++i) views.push_back(View{-40.0 + 15 * i, 5.0 * (i % 3)});
+  std::vector<cv::Mat> serial;
+  for (const auto& v : views) serial.push_back(session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, v, Preset::kStandard).bgr);
+  std::vector<cv::Mat> parallel(views.size());
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 2; ++t) {
+    threads.emplace_back([&, t] {
+      for (size_t i = t; i < views.size(); i += 2) {
+        parallel[i] = session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, views[i], Preset::kStandard).bgr;
+      }
+    });
+  }
+  for (auto& th : threads) th.join();
+  for (size_t i = 0; i < views.size(); ++i) EXPECT_TRUE(SameMat(serial[i], parallel[i])) << i;
+}
+
+TEST(Expression, KeyIsCanonical) {
+  Expression a{{{"smile", 0.5f}, {"jawOpen", 0.25f}}};
+  Expression b{{{"jawOpen", 0.25f}, {"smile", 0.5f}, {"blink", 0.0f}}};
+  EXPECT_EQ(a.Key(), b.Key());
+  EXPECT_EQ(a.Key(), "jawOpen=0.25,smile=0.5");
+  EXPECT_EQ(Expression{}.Key(), "");
+}
+
+}  // namespace
+}  // namespace avatar
