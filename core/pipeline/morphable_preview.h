@@ -5,8 +5,9 @@
 // always labelled "Preview: morphable model (neural model not trained yet)".
 //
 // Pose convention (ViewPose): the head turns by yaw (> 0: towards the image's left), pitch
-// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera;
-// zoom moves the camera closer (distance 2.7 / zoom).
+// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera,
+// applied in that order about the world axes (the same picture as an orbit camera with
+// azimuth, elevation and roll); zoom moves the camera closer (distance 2.7 / zoom).
 
 #include <memory>
 #include <string>

@@ -9,6 +9,8 @@
 #include "core/io/data_paths.h"
 #include "core/morphable/morphable.h"
 #include "core/pipeline/morphable_preview.h"
+#include "core/pipeline/session.h"
+#include "core/pipeline/session_source.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 
@@ -67,6 +69,22 @@ class TrackingAnalyzer : public FrameAnalyzer {
   MorphableFrameAnalyzer fitter_;
 };
 
+// One random-weight session per configuration and data folder (building it is the slow part).
+std::shared_ptr<const Session> SharedRandomSession(const BackendOptions& options) {
+  static std::mutex mutex;
+  static std::map<std::string, std::shared_ptr<const Session>> sessions;
+  std::lock_guard<std::mutex> lock(mutex);
+  auto& slot = sessions[options.preset + "|" + options.data_dir];
+  if (!slot) {
+    SessionOptions so;
+    so.random_weights = true;  // Explicit opt-in by the user; every frame is labelled.
+    so.config = options.preset;
+    so.data_dir = options.data_dir;
+    slot = std::make_shared<const Session>(so);
+  }
+  return slot;
+}
+
 }  // namespace
 
 void BackendOptions::Validate() const {
@@ -78,7 +96,16 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
   options.Validate();
   AVATAR_CHECK_INPUT(!portrait.empty() && portrait.type() == CV_8UC3) << "the portrait must be a BGR8 image";
   if (options.random_weights) {
-    throw InvalidOptions("--random-weights: the neural network session is not part of this build yet");
+    ctx.Report("build the network (random weights)", 0.0);
+    std::shared_ptr<const Session> session = SharedRandomSession(options);
+    ctx.ThrowIfCancelled();
+    Avatar avatar;
+    {
+      RunContext::ProgressRange range(ctx, 0.1, 1.0);
+      avatar = session->Reconstruct(portrait, ctx);
+    }
+    const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(options.data_dir));
+    return std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), true, &model);
   }
   ctx.Report("load models", 0.0);
   const DataPaths paths = DataPaths::Resolve(options.data_dir);
