@@ -46,6 +46,10 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
   }
   Timer timer;
   Session session(so);
+  if (so.random_weights && so.checkpoint.empty()) {
+    std::cerr << "warning: rendering with the UNTRAINED network's random weights (" << session.Info().model_id
+              << "); the frame is not a result.\n";
+  }
   const Avatar avatar = session.LoadAvatar(options.input);
   View view;
   view.yaw = options.yaw;
