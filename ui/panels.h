@@ -36,6 +36,7 @@ class SourcePanel : public QWidget {
   void setPreset(const QString& preset);
   bool randomWeights() const;
   QPushButton* reconstructButton() const { return reconstruct_; }
+  QCheckBox* randomWeightsBox() const { return random_weights_; }
 
  signals:
   void reconstructRequested();

@@ -189,6 +189,23 @@ TEST(Animate, BadInputsGiveClearMessagesAndExitCodes) {
   EXPECT_EQ(names, (std::vector<std::string>{"bad.json", "sky.png"}));
 }
 
+TEST(Animate, RandomWeightsOnlyOnRequestAndLabelledSo) {
+  TempDir dir;
+  const fs::path out = dir / "random.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' --random-weights --view orbit --seconds 0.4 --fps 5 -o '" +
+                        out.string() + "' --width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("RANDOM weights"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("not a result"), std::string::npos) << r.out;
+  EXPECT_NE(Probe(out).find("video,5/1,2"), std::string::npos) << Probe(out);
+  // Without the flag the network is never used.
+  const auto preview = Studio("animate '" + Portrait() + "' --view orbit --seconds 0.2 --fps 5 -o '" +
+                              (dir / "p.mp4").string() + "' --width 64 --height 64");
+  ASSERT_EQ(preview.exit_code, 0) << preview.err;
+  EXPECT_EQ(preview.out.find("RANDOM"), std::string::npos) << preview.out;
+  EXPECT_NE(preview.out.find("Preview: morphable model"), std::string::npos) << preview.out;
+}
+
 TEST(Animate, HelpDescribesTheOptions) {
   const auto r = Studio("animate --help");
   EXPECT_EQ(r.exit_code, 0);

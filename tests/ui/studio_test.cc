@@ -5,6 +5,7 @@
 #include <QAbstractButton>
 #include <QAbstractSlider>
 #include <QAction>
+#include <QCheckBox>
 #include <QComboBox>
 #include <QDockWidget>
 #include <QDropEvent>
@@ -286,6 +287,24 @@ class StudioTest : public QObject {
     QVERIFY(cancelled.wait(30000));
     qInfo("export cancel took effect after %lld ms", static_cast<long long>(clock.elapsed()));
     QVERIFY(QDir(dir.path()).entryList(QDir::AllEntries | QDir::Hidden | QDir::NoDotAndDotDot).isEmpty());
+  }
+
+  void randomWeightsAreExplicitAndLabelled() {
+    MainWindow& w = *window_;
+    QVERIFY(!w.sourcePanel()->randomWeights());  // Off by default, never persisted.
+    QVERIFY(!w.viewport()->label().contains(QStringLiteral("RANDOM")));
+    w.sourcePanel()->randomWeightsBox()->setChecked(true);
+    QSignalSpy done(&w, &MainWindow::reconstructionFinished);
+    QSignalSpy shown(&w, &MainWindow::frameShown);
+    QTest::keyClick(&w, Qt::Key_R, Qt::ControlModifier);  // Reconstruct.
+    QVERIFY2(done.wait(120000), qPrintable(w.lastError()));
+    QVERIFY(WaitForFreshFrame(w, shown, 60000));
+    QVERIFY2(w.viewport()->label().contains(QStringLiteral("RANDOM")), qPrintable(w.viewport()->label()));
+    QVERIFY(w.viewport()->label().contains(QStringLiteral("not a result")));
+    w.sourcePanel()->randomWeightsBox()->setChecked(false);
+    QVERIFY(w.reconstruct());
+    QVERIFY(done.wait(120000));
+    QVERIFY(w.viewport()->label().contains(QStringLiteral("morphable model")));
   }
 
   void settingsPersist() {
