@@ -71,7 +71,7 @@ bool ParseCommand(Options& options, const std::vector<std::string>& args, const 
                   const std::string& description, std::vector<std::string>* positionals) {
   *positionals = options::ParseFlags(options, args);
   if (options.common.help) {
-    std::cout << "Usage: " << usage << "\n\n" << description << "\n\nOptions:\n" << options::Help(options);
+    std::cout << "Usage: " << usage << "\n\n" << description << "\n\nOptions:\n" << options::Help(Options{});
     return false;
   }
   ApplyCommon(options.common);

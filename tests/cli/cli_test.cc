@@ -46,6 +46,14 @@ TEST(Cli, StartsWithPassiveOpenMpWaitUnlessTheUserChoseAPolicy) {
   EXPECT_NE(chosen.out.find("OpenMP wait policy ACTIVE"), std::string::npos) << chosen.out;
 }
 
+TEST(Cli, CommandHelpShowsTheDefaultsNotTheFlagsGiven) {
+  const auto r = Studio("view --help --verbose --threads 3");
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("Show this help [default: false]"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("Print debug log lines [default: false]"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("[default: 3]"), std::string::npos) << r.out;
+}
+
 TEST(Cli, UnknownCommandIsAUsageError) {
   const auto r = Studio("frobnicate");
   EXPECT_EQ(r.exit_code, 2);
