@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -13,6 +15,7 @@
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
 #include "core/pipeline/animate.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -143,6 +146,25 @@ TEST(Animate, CancelLeavesNoFileAndNoTemporaries) {
     EXPECT_THROW(RunAnimation(o, ctx), Cancelled);
     EXPECT_EQ(dir.List(), std::vector<std::string>{"talk.mp4"}) << target;
   }
+}
+
+TEST(Animate, ReconstructionStopsAtTheNextStageWhenCancelled) {
+  const cv::Mat portrait = cv::imread(Portrait());
+  ASSERT_FALSE(portrait.empty());
+  std::vector<std::string> stages;
+  std::chrono::steady_clock::time_point asked;
+  RunContext ctx([&](const Progress& p) {
+    stages.push_back(p.stage);
+    if (stages.size() == 2) {
+      asked = std::chrono::steady_clock::now();
+      ctx.RequestCancel();
+    }
+  });
+  EXPECT_THROW(CreateFrameSource(portrait, BackendOptions{}, ctx), Cancelled);
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - asked).count();
+  std::printf("reconstruction stopped %.1f ms after the cancel request (stages seen: %zu)\n", ms, stages.size());
+  EXPECT_EQ(stages.size(), 2u) << "work went on after the cancel request";
 }
 
 TEST(Animate, ExportFailureLeavesNoFile) {
