@@ -300,8 +300,8 @@ void MainWindow::createMenus() {
   });
 
   QMenu* drive = menuBar()->addMenu(tr("&Driving"));
-  QAction* play = drive->addAction(tr("&Play / Pause"), this,
-                                   [this] { driving_panel_->setPlaying(!driving_panel_->isPlaying()); });
+  QAction* play =
+      drive->addAction(tr("&Play / Pause"), this, [this] { driving_panel_->setPlaying(!driving_panel_->isPlaying()); });
   play->setShortcut(QKeySequence(Qt::Key_Space));
   QAction* back = drive->addAction(tr("Step &Back"), this, [this] { stepDriver(-1); });
   back->setShortcut(QKeySequence(Qt::Key_BracketLeft));
@@ -573,9 +573,9 @@ void MainWindow::showOpenDialog() {
 }
 
 void MainWindow::showOpenDriverDialog() {
-  const QString path = QFileDialog::getOpenFileName(this, tr("Open Driving Video"),
-                                                    QSettings().value("driving/lastFolder").toString(),
-                                                    tr("Videos (*.mp4 *.mov *.avi *.mkv *.webm *.m4v)"));
+  const QString path =
+      QFileDialog::getOpenFileName(this, tr("Open Driving Video"), QSettings().value("driving/lastFolder").toString(),
+                                   tr("Videos (*.mp4 *.mov *.avi *.mkv *.webm *.m4v)"));
   if (path.isEmpty()) return;
   QSettings().setValue("driving/lastFolder", QFileInfo(path).absolutePath());
   openDriver(path);

@@ -37,7 +37,9 @@ void AddSliderRow(QFormLayout* form, const QString& label, QSlider* slider, cons
   auto* value = new QLabel(slider->parentWidget());
   value->setMinimumWidth(44);
   value->setAlignment(Qt::AlignRight | Qt::AlignVCenter);
-  auto show = [value, unit, scale](int v) { value->setText(QString::number(v * scale, 'f', scale < 1 ? 2 : 0) + unit); };
+  auto show = [value, unit, scale](int v) {
+    value->setText(QString::number(v * scale, 'f', scale < 1 ? 2 : 0) + unit);
+  };
   show(slider->value());
   QObject::connect(slider, &QSlider::valueChanged, value, show);
   auto* row = new QHBoxLayout;
@@ -51,8 +53,8 @@ void AddSliderRow(QFormLayout* form, const QString& label, QSlider* slider, cons
 
 QString PrettyName(const QString& control) {
   static const std::map<QString, QString> kNames = {
-      {"jawOpen", "&Jaw open"},   {"smile", "S&mile"},          {"frown", "&Frown"},
-      {"pucker", "Puc&ker"},      {"mouthWide", "Mouth &wide"}, {"browRaise", "&Brow raise"},
+      {"jawOpen", "&Jaw open"},     {"smile", "S&mile"},          {"frown", "&Frown"},
+      {"pucker", "Puc&ker"},        {"mouthWide", "Mouth &wide"}, {"browRaise", "&Brow raise"},
       {"browFrown", "Brow fr&own"}, {"blinkLeft", "Blink &left"}, {"blinkRight", "Blink ri&ght"},
       {"eyesWide", "E&yes wide"}};
   auto it = kNames.find(control);
@@ -189,7 +191,8 @@ ExpressionPanel::ExpressionPanel(QWidget* parent) : QWidget(parent) {
   auto* layout = new QVBoxLayout(this);
   auto* form = new QFormLayout;
   for (const QString& name : ControlNames()) {
-    QSlider* s = MakeSlider(0, 100, 0, tr("Expression control '%1' from 0 to 1 (Alt+underlined letter)").arg(name), this);
+    QSlider* s =
+        MakeSlider(0, 100, 0, tr("Expression control '%1' from 0 to 1 (Alt+underlined letter)").arg(name), this);
     s->setObjectName(name);
     s->setEnabled(false);
     AddSliderRow(form, PrettyName(name), s, QString(), 0.01);
@@ -339,8 +342,9 @@ DrivingPanel::DrivingPanel(QWidget* parent) : QWidget(parent) {
   mode_ = new QComboBox(this);
   mode_->addItem(tr("Relative"), true);
   mode_->addItem(tr("Absolute"), false);
-  mode_->setToolTip(tr("Relative: apply the driver's change from its neutral frame; absolute: apply its expression "
-                       "as measured (Alt+A)"));
+  mode_->setToolTip(
+      tr("Relative: apply the driver's change from its neutral frame; absolute: apply its expression "
+         "as measured (Alt+A)"));
   auto* m_label = new QLabel(tr("Tr&ansfer"), this);
   m_label->setBuddy(mode_);
   smoothing_ = MakeSlider(0, 95, 30, tr("Temporal smoothing of the driver while playing (Alt+H)"), this);

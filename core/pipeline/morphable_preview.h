@@ -32,8 +32,8 @@ class MorphablePreviewSource : public FrameSource {
  public:
   // `model` must outlive the source (LoadDefaultModel's models live for the process).
   // `fit` and `texture` describe the portrait; `overlay` is drawn over the source thumbnail.
-  MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit,
-                         morphable::Texture texture, SourceOverlay overlay = {});
+  MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit, morphable::Texture texture,
+                         SourceOverlay overlay = {});
 
   std::string Label() const override;
   bool SupportsPose() const override { return true; }

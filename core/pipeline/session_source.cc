@@ -20,9 +20,7 @@ SessionFrameSource::SessionFrameSource(std::shared_ptr<const Session> session, A
   source_pose_ = PoseFromRotation(front.world_to_cam.t() * source.world_to_cam);
 }
 
-std::string SessionFrameSource::Label() const {
-  return random_weights_ ? kRandomWeightsLabel : "Neural avatar";
-}
+std::string SessionFrameSource::Label() const { return random_weights_ ? kRandomWeightsLabel : "Neural avatar"; }
 
 View SessionFrameSource::ToView(const ViewPose& pose) {
   // Turning the head towards the image's left is the camera orbiting to the subject's left

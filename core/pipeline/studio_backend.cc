@@ -48,18 +48,19 @@ class TrackingAnalyzer : public FrameAnalyzer {
  public:
   TrackingAnalyzer(const face::FaceAnalyzer& analyzer, const morphable::MorphableModel& model)
       : tracker_(std::make_unique<face::FaceTracker>(analyzer)),
-        fitter_(model,
-                [this](const cv::Mat& bgr, face::Landmarks* landmarks) {
-                  const face::TrackedFace tracked = tracker_->Track(bgr, time_);
-                  time_ += 1.0 / 25.0;
-                  if (!tracked.found) return false;
-                  *landmarks = tracked.landmarks;
-                  return true;
-                },
-                [this] {
-                  tracker_->Reset();
-                  time_ = 0.0;
-                }) {}
+        fitter_(
+            model,
+            [this](const cv::Mat& bgr, face::Landmarks* landmarks) {
+              const face::TrackedFace tracked = tracker_->Track(bgr, time_);
+              time_ += 1.0 / 25.0;
+              if (!tracked.found) return false;
+              *landmarks = tracked.landmarks;
+              return true;
+            },
+            [this] {
+              tracker_->Reset();
+              time_ = 0.0;
+            }) {}
   FrameMeasurement Measure(const cv::Mat& bgr, RunContext& ctx) override { return fitter_.Measure(bgr, ctx); }
   void Reset() override { fitter_.Reset(); }
 
@@ -88,7 +89,8 @@ std::shared_ptr<const Session> SharedRandomSession(const BackendOptions& options
 }  // namespace
 
 void BackendOptions::Validate() const {
-  AVATAR_CHECK_OPTION(preset == "lite" || preset == "paper") << "--preset must be lite or paper, got '" << preset << "'";
+  AVATAR_CHECK_OPTION(preset == "lite" || preset == "paper")
+      << "--preset must be lite or paper, got '" << preset << "'";
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,

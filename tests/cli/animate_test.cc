@@ -46,8 +46,8 @@ fs::path MakeClip(const TempDir& dir, const std::string& name, int frames, int f
   }
   args.insert(args.end(), {"-map", "0:v:0"});
   if (audio) args.insert(args.end(), {"-map", "1:a:0", "-c:a", "aac"});
-  args.insert(args.end(), {"-vf", "fps=" + std::to_string(fps), "-t", std::to_string(seconds), "-c:v",
-                           "libx264", "-pix_fmt", "yuv420p", (dir / name).string()});
+  args.insert(args.end(), {"-vf", "fps=" + std::to_string(fps), "-t", std::to_string(seconds), "-c:v", "libx264",
+                           "-pix_fmt", "yuv420p", (dir / name).string()});
   EXPECT_EQ(RunProgram("ffmpeg", args), 0) << "ffmpeg could not make the test clip";
   return dir / name;
 }
@@ -66,12 +66,11 @@ TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
   const fs::path clip = MakeClip(dir, "talk.mp4", 30, 15, true);
   ASSERT_TRUE(ProbeHasAudio(clip));
   const fs::path out = dir / "out.mp4";
-  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
-                        "' --width 96 --height 96");
+  const auto r =
+      Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() + "' --width 96 --height 96");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("Wrote 30 frames at 15 fps"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n"
-                                                          << r.out;
+  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n" << r.out;
   EXPECT_NE(r.out.find("Preview: morphable model"), std::string::npos) << r.out;
   EXPECT_EQ(r.out.find("timing and audio only"), std::string::npos) << "the driver was not measured\n" << r.out;
   const std::string probe = Probe(out);
@@ -86,8 +85,8 @@ TEST(Animate, SilentDriverGivesASilentClipWithItsFrameCount) {
   TempDir dir;
   const fs::path clip = MakeClip(dir, "silent.mp4", 12, 24, false);
   const fs::path out = dir / "out.mp4";
-  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
-                        "' --width 64 --height 64");
+  const auto r =
+      Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() + "' --width 64 --height 64");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,24/1,12"), std::string::npos) << probe;
@@ -161,8 +160,7 @@ TEST(Animate, ReconstructionStopsAtTheNextStageWhenCancelled) {
     }
   });
   EXPECT_THROW(CreateFrameSource(portrait, BackendOptions{}, ctx), Cancelled);
-  const double ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - asked).count();
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - asked).count();
   std::printf("reconstruction stopped %.1f ms after the cancel request (stages seen: %zu)\n", ms, stages.size());
   EXPECT_EQ(stages.size(), 2u) << "work went on after the cancel request";
 }

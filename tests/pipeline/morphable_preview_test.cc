@@ -160,7 +160,8 @@ TEST(MorphablePreview, BadRequestsAreClearErrors) {
 
 TEST(MorphablePreview, TurntablePngSequenceHasVaryingAlphaAtTheHeadsEdge) {
   const MorphablePreviewSource source = SourceAt({});
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("avatar_orbit_" + std::to_string(::getpid()));
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("avatar_orbit_" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   AnimationPlan plan;

@@ -120,8 +120,8 @@ class StudioTest : public QObject {
     for (QAction* a : w.findChildren<QAction*>()) {
       if (!a->shortcut().isEmpty()) shortcuts << a->shortcut().toString();
     }
-    for (const char* key : {"Ctrl+O", "Ctrl+Shift+O", "Ctrl+E", "Ctrl+R", "Esc", "Ctrl+N", "Ctrl+0", "Ctrl+L",
-                            "Ctrl+M", "Space", "[", "]"}) {
+    for (const char* key : {"Ctrl+O", "Ctrl+Shift+O", "Ctrl+E", "Ctrl+R", "Esc", "Ctrl+N", "Ctrl+0", "Ctrl+L", "Ctrl+M",
+                            "Space", "[", "]"}) {
       QVERIFY2(shortcuts.contains(QString::fromLatin1(key)), key);
     }
     // Sliders are reachable by keyboard (a mnemonic label or focus) and move with the arrows.
