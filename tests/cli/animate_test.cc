@@ -1,6 +1,8 @@
 // `avatar-studio animate`: the real executable on the bundled sample portrait and short
 // driving clips made here with ffmpeg (with and without a sound track). Outputs are checked
 // with ffprobe and by reading them back.
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
@@ -17,6 +19,7 @@
 #include "core/pipeline/animate.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
+#include "morphable/morphable_test_util.h"
 
 namespace avatar {
 namespace {
@@ -25,12 +28,29 @@ using avatar::testing::ProcessResult;
 using avatar::testing::TempDir;
 namespace fs = std::filesystem;
 
+// The morphable model these tests render with: a synthetic one written once per process
+// (smooth random bases on the installed facemesh topology), so the tests exercise the whole
+// animate path - real face analysis of the sample portrait, fit, texture, rendering, export -
+// without depending on the committed model's contents.
+const std::string& SyntheticModelFile() {
+  static const std::string path = [] {
+    const fs::path file = fs::temp_directory_path() / ("avatar_cli_model_" + std::to_string(::getpid()) + ".avmm");
+    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(file);
+    ::setenv("AVATAR_MORPHABLE_MODEL", file.c_str(), 1);
+    return file.string();
+  }();
+  return path;
+}
+
 ProcessResult Studio(const std::string& args) {
-  return avatar::testing::RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
-                                     "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2");
+  return avatar::testing::RunProcess(
+      std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
+      "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2 AVATAR_MORPHABLE_MODEL='" +
+          SyntheticModelFile() + "'");
 }
 
 std::string Portrait() {
+  SyntheticModelFile();  // In-process calls (RunAnimation, CreateFrameSource) use it too.
   return DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)").string();
 }
 
