@@ -60,17 +60,19 @@ int RunInspectImpl(const InspectOptions& options, RunContext& ctx) {
   };
   row("E_c: SegFormer MiT + decode head (to 1x1 fuse)", CountParameters(*model->canonical_encoder),
       "I_s " + Shape({1, 3, s, s}), "F_c " + Shape({1, d, g, g}));
-  row("E_c: Embed2Plane", CountParameters(*model->canonical_head), Shape({1, d, g, g}), "T_c " + Shape({1, 3, ch, p, p}));
-  row("appearance: depth render of T_c at C_s", 0, "T_c", "D_s " + Shape({1, 1, g, g}) + ", I_c " + Shape({1, 3, g, g}));
+  row("E_c: Embed2Plane", CountParameters(*model->canonical_head), Shape({1, d, g, g}),
+      "T_c " + Shape({1, 3, ch, p, p}));
+  row("appearance: depth render of T_c at C_s", 0, "T_c",
+      "D_s " + Shape({1, 1, g, g}) + ", I_c " + Shape({1, 3, g, g}));
   row("E_p: SegFormer MiT (6-channel input) + decode head", CountParameters(*model->appearance_encoder),
       Shape({1, 6, s, s}), "F " + Shape({1, d, g, g}));
-  row("appearance: lifting + rasterization (k-d tree)", 0,
-      "P " + Shape({1, g * g, 3}) + ", F", Shape({1, 3, d, g, g}));
+  row("appearance: lifting + rasterization (k-d tree)", 0, "P " + Shape({1, g * g, 3}) + ", F", Shape({1, 3, d, g, g}));
   row("appearance: 3 upsamplers (one per plane)", upsampler_params, Shape({1, d, g, g}) + " x3",
       "T_p " + Shape({1, 3, ch, p, p}));
   row("E_e: SegFormer MiT + decode head", CountParameters(*model->expression_encoder), "I_exp " + Shape({1, 3, s, s}),
       "F_e " + Shape({1, d, g, g}));
-  row("E_e: Embed2Plane", CountParameters(*model->expression_head), Shape({1, d, g, g}), "T_e " + Shape({1, 3, ch, p, p}));
+  row("E_e: Embed2Plane", CountParameters(*model->expression_head), Shape({1, d, g, g}),
+      "T_e " + Shape({1, 3, ch, p, p}));
   row("tri-plane decoder (per point)", CountParameters(*model->decoder), Shape({ch}), Shape({1 + ch}));
   row("volume render of T_c + T_p + T_e", 0, Shape({1, 3, ch, p, p}),
       Shape({1, 3, r, r}) + " (" + std::to_string(c.num_coarse) + "+" + std::to_string(c.num_importance) +

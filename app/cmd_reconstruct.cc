@@ -23,14 +23,14 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
   Session session(so);
   const ModelInfo info = session.Info();
   if (so.random_weights && so.checkpoint.empty()) {
-    std::cerr << "warning: running the UNTRAINED network with random weights (config " << info.config_name
-              << ", seed " << so.seed << "); the avatar will look like noise.\n";
+    std::cerr << "warning: running the UNTRAINED network with random weights (config " << info.config_name << ", seed "
+              << so.seed << "); the avatar will look like noise.\n";
   }
   const cv::Mat image = LoadImageBgr(options.input);
   const Avatar avatar = session.Reconstruct(image, ctx);
   session.SaveAvatar(avatar, options.output);
-  std::cout << "Reconstructed '" << options.input << "' with model " << info.model_id << " (config "
-            << info.config_name << ") in " << timer.Seconds() << " s and wrote '" << options.output << "'.\n";
+  std::cout << "Reconstructed '" << options.input << "' with model " << info.model_id << " (config " << info.config_name
+            << ") in " << timer.Seconds() << " s and wrote '" << options.output << "'.\n";
   return kExitOk;
 }
 

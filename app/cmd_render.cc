@@ -55,7 +55,8 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
   view.yaw = options.yaw;
   view.pitch = options.pitch;
   view.roll = options.roll;
-  const Frame frame = session.Animate(avatar, ParseExpressionFlags(options.expr), view, PresetFromName(options.preset), &ctx);
+  const Frame frame =
+      session.Animate(avatar, ParseExpressionFlags(options.expr), view, PresetFromName(options.preset), &ctx);
   cv::Mat out = frame.bgr;
   if (options.alpha) {
     cv::Mat alpha;
@@ -90,8 +91,8 @@ int RunRender(const std::vector<std::string>& args) {
                       "Renders one frame of an avatar from a camera and an expression.", &positionals)) {
       return kExitOk;
     }
-    AVATAR_CHECK_OPTION(positionals.size() <= 1) << "expected one FILE.avatar, got " << positionals.size()
-                                                 << " arguments";
+    AVATAR_CHECK_OPTION(positionals.size() <= 1)
+        << "expected one FILE.avatar, got " << positionals.size() << " arguments";
     if (!positionals.empty()) options.input = positionals[0];
     return RunRenderImpl(options, ProcessContext());
   });

@@ -22,7 +22,6 @@ constexpr int kMatteInput = 256;
 constexpr int kEmbedInput = 112;
 // Facemesh crops are the face box (or landmark box) enlarged by this factor.
 constexpr float kMeshRoiScale = 1.5f;
-constexpr double kDeg = 180.0 / M_PI;
 
 // ArcFace's 112x112 five-point template (eye centres, nose tip, mouth corners; image-left first).
 const std::vector<cv::Point2f>& ArcFaceTemplate() {

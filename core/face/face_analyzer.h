@@ -47,7 +47,7 @@ struct FaceAnalyzerOptions {
   // Landmarks whose face-presence confidence is below this are refused.
   float min_mesh_confidence = 0.5f;
   // Faces turned further than this (|yaw| degrees) are refused by AnalyzePortrait.
-  float max_abs_yaw = 45.0f;
+  float max_abs_yaw = 40.0f;
 
   template <typename V>
   void Visit(V&& v) {

@@ -30,24 +30,38 @@ void Put(std::string& out, T value) {
 
 std::string DtypeName(torch::ScalarType t) {
   switch (t) {
-    case torch::kFloat32: return "float32";
-    case torch::kFloat64: return "float64";
-    case torch::kInt64: return "int64";
-    case torch::kInt32: return "int32";
-    case torch::kUInt8: return "uint8";
-    case torch::kBool: return "bool";
-    default: throw InvalidInput(std::string("tensor archives cannot store dtype ") + c10::toString(t));
+    case torch::kFloat32:
+      return "float32";
+    case torch::kFloat64:
+      return "float64";
+    case torch::kInt64:
+      return "int64";
+    case torch::kInt32:
+      return "int32";
+    case torch::kUInt8:
+      return "uint8";
+    case torch::kBool:
+      return "bool";
+    default:
+      throw InvalidInput(std::string("tensor archives cannot store dtype ") + c10::toString(t));
   }
 }
 
 bool DtypeFromName(const std::string& name, torch::ScalarType* t) {
-  if (name == "float32") *t = torch::kFloat32;
-  else if (name == "float64") *t = torch::kFloat64;
-  else if (name == "int64") *t = torch::kInt64;
-  else if (name == "int32") *t = torch::kInt32;
-  else if (name == "uint8") *t = torch::kUInt8;
-  else if (name == "bool") *t = torch::kBool;
-  else return false;
+  if (name == "float32")
+    *t = torch::kFloat32;
+  else if (name == "float64")
+    *t = torch::kFloat64;
+  else if (name == "int64")
+    *t = torch::kInt64;
+  else if (name == "int32")
+    *t = torch::kInt32;
+  else if (name == "uint8")
+    *t = torch::kUInt8;
+  else if (name == "bool")
+    *t = torch::kBool;
+  else
+    return false;
   return true;
 }
 
@@ -90,7 +104,8 @@ TensorArchive DecodeTensorArchive(const std::string& bytes, const std::string& s
   const auto fail = [&](const std::string& why) { return ModelLoad(source + ": " + why); };
   size_t pos = 0;
   const auto take = [&](void* dst, size_t n, const char* what) {
-    if (bytes.size() - pos < n || pos > bytes.size()) throw fail(std::string("file is truncated (while reading ") + what + ")");
+    if (bytes.size() - pos < n || pos > bytes.size())
+      throw fail(std::string("file is truncated (while reading ") + what + ")");
     std::memcpy(dst, bytes.data() + pos, n);
     pos += n;
   };
@@ -136,7 +151,8 @@ TensorArchive DecodeTensorArchive(const std::string& bytes, const std::string& s
     for (const auto& entry : header.at("tensors")) {
       const std::string name = entry.at("name").get<std::string>();
       torch::ScalarType dtype;
-      if (!DtypeFromName(entry.at("dtype").get<std::string>(), &dtype)) throw fail("tensor '" + name + "' has an unknown dtype");
+      if (!DtypeFromName(entry.at("dtype").get<std::string>(), &dtype))
+        throw fail("tensor '" + name + "' has an unknown dtype");
       const std::vector<int64_t> shape = entry.at("shape").get<std::vector<int64_t>>();
       const uint64_t offset = entry.at("offset").get<uint64_t>();
       const uint64_t nbytes = entry.at("nbytes").get<uint64_t>();
@@ -145,8 +161,10 @@ TensorArchive DecodeTensorArchive(const std::string& bytes, const std::string& s
         if (d < 0) throw fail("tensor '" + name + "' has a negative dimension");
         numel *= static_cast<uint64_t>(d);
       }
-      if (numel * c10::elementSize(dtype) != nbytes) throw fail("tensor '" + name + "' byte count does not match its shape");
-      if (offset > data_len || nbytes > data_len - offset) throw fail("tensor '" + name + "' lies outside the data block");
+      if (numel * c10::elementSize(dtype) != nbytes)
+        throw fail("tensor '" + name + "' byte count does not match its shape");
+      if (offset > data_len || nbytes > data_len - offset)
+        throw fail("tensor '" + name + "' lies outside the data block");
       torch::Tensor t = torch::empty(shape, torch::TensorOptions().dtype(dtype));
       if (nbytes > 0) std::memcpy(t.data_ptr(), bytes.data() + data_pos + offset, nbytes);
       archive.tensors.emplace_back(name, t);

@@ -18,8 +18,8 @@
 #include <utility>
 #include <vector>
 
-#include <nlohmann/json.hpp>
 #include <torch/torch.h>
+#include <nlohmann/json.hpp>
 
 #include "core/model/model_config.h"
 
@@ -28,8 +28,8 @@ namespace avatar {
 inline constexpr uint32_t kArchiveVersion = 1;
 
 struct TensorArchive {
-  std::string kind;                                          // e.g. "goha-model", "goha-avatar"
-  nlohmann::json meta = nlohmann::json::object();           // free-form metadata
+  std::string kind;                                            // e.g. "goha-model", "goha-avatar"
+  nlohmann::json meta = nlohmann::json::object();              // free-form metadata
   std::vector<std::pair<std::string, torch::Tensor>> tensors;  // name -> tensor (any device; saved from CPU)
 
   // The tensor called `name`; throws ModelLoad (mentioning `file`) when absent.
@@ -50,9 +50,9 @@ TensorArchive ReadTensorArchive(const std::filesystem::path& path, const std::st
 
 // Metadata stored with every model checkpoint.
 struct CheckpointInfo {
-  int64_t step = 0;               // training step the weights come from (0 = random init)
-  std::string data_provenance;    // what the weights were trained on ("random init" for none)
-  std::string created_by;         // program and version
+  int64_t step = 0;             // training step the weights come from (0 = random init)
+  std::string data_provenance;  // what the weights were trained on ("random init" for none)
+  std::string created_by;       // program and version
 };
 
 }  // namespace avatar

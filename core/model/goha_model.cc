@@ -14,9 +14,7 @@ namespace F = torch::nn::functional;
 
 namespace {
 
-torch::Tensor LRelu(const torch::Tensor& x) {
-  return F::leaky_relu(x, F::LeakyReLUFuncOptions().negative_slope(0.2));
-}
+torch::Tensor LRelu(const torch::Tensor& x) { return F::leaky_relu(x, F::LeakyReLUFuncOptions().negative_slope(0.2)); }
 
 torch::nn::Conv2d Conv(int64_t in, int64_t out, int64_t k) {
   return torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, k).padding(k / 2));
@@ -51,7 +49,7 @@ torch::Tensor Embed2PlaneImpl::forward(const torch::Tensor& x) {
   y = LRelu(conv2_->forward(y));
   y = LRelu(up_->forward(y));
   y = LRelu(conv4_->forward(y));
-  y = conv5_->forward(y);                                         // [B,3C,2h,2w]
+  y = conv5_->forward(y);                                          // [B,3C,2h,2w]
   return y.view({y.size(0), 3, channels_, y.size(2), y.size(3)});  // [B,3,C,2h,2w]
 }
 
@@ -73,7 +71,8 @@ torch::Tensor PlaneUpsamplerImpl::forward(const torch::Tensor& x) {
 }
 
 double PlaneUpsamplerImpl::Flops(int64_t h, int64_t w) const {
-  return ConvFlops(in_, out_, 1, 2 * h, 2 * w) + ConvFlops(in_, width_, 4, h, w) + ConvFlops(width_, out_, 3, 2 * h, 2 * w);
+  return ConvFlops(in_, out_, 1, 2 * h, 2 * w) + ConvFlops(in_, width_, 4, h, w) +
+         ConvFlops(width_, out_, 3, 2 * h, 2 * w);
 }
 
 GohaModelImpl::GohaModelImpl(const ModelConfig& config) : config_(config) {
@@ -148,8 +147,8 @@ AppearanceOutput GohaModelImpl::AppearancePlanes(const torch::Tensor& source, co
   AVATAR_CHECK_INPUT(eye_mouth.dim() == 4 && eye_mouth.size(0) == b && eye_mouth.size(1) == 1 &&
                      eye_mouth.size(2) == s && eye_mouth.size(3) == s)
       << "eye/mouth mask must be [B,1," << s << "," << s << "], got " << eye_mouth.sizes();
-  AVATAR_CHECK_INPUT(matte.sizes() == eye_mouth.sizes()) << "matte must be [B,1," << s << "," << s << "], got "
-                                                         << matte.sizes();
+  AVATAR_CHECK_INPUT(matte.sizes() == eye_mouth.sizes())
+      << "matte must be [B,1," << s << "," << s << "], got " << matte.sizes();
   AVATAR_CHECK_INPUT(cameras.batch() == b) << "need one source camera per image";
   AppearanceOutput out;
   {
@@ -176,11 +175,11 @@ AppearanceOutput GohaModelImpl::AppearancePlanes(const torch::Tensor& source, co
       F::interpolate(matte, F::InterpolateFuncOptions().size(std::vector<int64_t>{g, g}).mode(torch::kArea));
   out.foreground = (matte_small.reshape({b, g * g}) >= 0.5);
   const torch::Tensor point_features = features.flatten(2).transpose(1, 2);  // [B,G*G,D]
-  const torch::Tensor raster =
-      RasterizePointFeatures(out.points, out.foreground, point_features, g, RenderOptionsFor().box_warp);  // [B,3,D,G,G]
+  const torch::Tensor raster = RasterizePointFeatures(out.points, out.foreground, point_features, g,
+                                                      RenderOptionsFor().box_warp);  // [B,3,D,G,G]
   std::vector<torch::Tensor> planes;
   for (int p = 0; p < 3; ++p) planes.push_back(upsamplers[p]->forward(raster.select(1, p)));  // [B,C,2G,2G]
-  out.planes = torch::stack(planes, 1);                                                         // [B,3,C,P,P]
+  out.planes = torch::stack(planes, 1);                                                       // [B,3,C,P,P]
   return out;
 }
 
@@ -222,8 +221,7 @@ void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, co
   archive.meta = {{"config", nlohmann::json::parse(ModelConfigToJson(model->config()))},
                   {"step", info.step},
                   {"data_provenance", info.data_provenance},
-                  {"created_by", info.created_by.empty() ? std::string("avatar-studio ") + kVersion
-                                                         : info.created_by}};
+                  {"created_by", info.created_by.empty() ? std::string("avatar-studio ") + kVersion : info.created_by}};
   for (const auto& item : model->named_parameters(true)) archive.tensors.emplace_back(item.key(), item.value());
   for (const auto& item : model->named_buffers(true)) archive.tensors.emplace_back(item.key(), item.value());
   WriteTensorArchive(path, archive);

@@ -75,11 +75,11 @@ struct ModelCounters {
 
 // Intermediate results of the appearance branch.
 struct AppearanceOutput {
-  torch::Tensor planes;            // T_p [B,3,C,P,P]
-  torch::Tensor canonical_rgb;     // I_c [B,3,G,G] in [-1,1] at the source camera (G = feature_size)
-  torch::Tensor depth;             // D_s [B,1,G,G]
-  torch::Tensor foreground;        // [B,G*G] bool: rays lifted into the point cloud
-  torch::Tensor points;            // [B,G*G,3] lifted points (all rays)
+  torch::Tensor planes;         // T_p [B,3,C,P,P]
+  torch::Tensor canonical_rgb;  // I_c [B,3,G,G] in [-1,1] at the source camera (G = feature_size)
+  torch::Tensor depth;          // D_s [B,1,G,G]
+  torch::Tensor foreground;     // [B,G*G] bool: rays lifted into the point cloud
+  torch::Tensor points;         // [B,G*G,3] lifted points (all rays)
 };
 
 class GohaModelImpl : public torch::nn::Module {

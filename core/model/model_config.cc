@@ -24,8 +24,8 @@ void ModelConfig::Validate() const {
                         encoder_sr_ratios[s] > 0)
         << "model config '" << name << "': stage " << s << " sizes must be positive";
     AVATAR_CHECK_OPTION(encoder_widths[s] % encoder_heads[s] == 0)
-        << "model config '" << name << "': stage " << s << " width " << encoder_widths[s]
-        << " is not divisible by its " << encoder_heads[s] << " heads";
+        << "model config '" << name << "': stage " << s << " width " << encoder_widths[s] << " is not divisible by its "
+        << encoder_heads[s] << " heads";
   }
   AVATAR_CHECK_OPTION(image_size >= 32 && image_size % 32 == 0 && image_size <= 2048)
       << "model config '" << name << "': image_size must be a multiple of 32 in 32..2048, got " << image_size;

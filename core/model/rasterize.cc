@@ -159,7 +159,7 @@ torch::Tensor RasterizePointFeatures(const torch::Tensor& points, const torch::T
       std::vector<torch::Tensor> planes;
       for (int p = 0; p < 3; ++p) {
         const torch::Tensor index = torch::tensor(idx[p], torch::kLong).to(features.device());  // [G*G]
-        planes.push_back(feats.index_select(0, index).t().reshape({c, grid, grid}));        // [C,G,G]
+        planes.push_back(feats.index_select(0, index).t().reshape({c, grid, grid}));            // [C,G,G]
       }
       batch_planes.push_back(torch::stack(planes, 0));  // [3,C,G,G]
     } else {
@@ -177,7 +177,7 @@ torch::Tensor RasterizePointFeatures(const torch::Tensor& points, const torch::T
     }
   }
   if (b == 1) return batch_planes[0].unsqueeze(0);  // keeps the channels-last strides
-  return torch::stack(batch_planes, 0);              // [B,3,C,G,G]
+  return torch::stack(batch_planes, 0);             // [B,3,C,G,G]
 }
 
 }  // namespace avatar

@@ -24,15 +24,16 @@ torch::nn::Linear MakeLinear(int64_t in, int64_t out, bool bias = true) {
   return layer;
 }
 
-int64_t ConvOut(int64_t in, int64_t kernel, int64_t stride, int64_t pad) { return (in + 2 * pad - kernel) / stride + 1; }
+int64_t ConvOut(int64_t in, int64_t kernel, int64_t stride, int64_t pad) {
+  return (in + 2 * pad - kernel) / stride + 1;
+}
 
 }  // namespace
 
 OverlapPatchEmbedImpl::OverlapPatchEmbedImpl(int64_t in, int64_t out, int64_t kernel, int64_t stride)
     : in_(in), out_(out), kernel_(kernel), stride_(stride) {
-  proj_ = register_module("proj", torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, kernel)
-                                                        .stride(stride)
-                                                        .padding(kernel / 2)));
+  proj_ = register_module(
+      "proj", torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, kernel).stride(stride).padding(kernel / 2)));
   norm_ = register_module("norm", torch::nn::LayerNorm(torch::nn::LayerNormOptions({out})));
 }
 
@@ -72,7 +73,7 @@ torch::Tensor EfficientAttentionImpl::forward(const torch::Tensor& x, int64_t h,
   torch::Tensor kv = kv_->forward(source).view({b, nr, 2, heads_, d}).permute({2, 0, 3, 1, 4});  // [2,B,h,Nr,d]
   torch::Tensor k = kv[0], v = kv[1];
   torch::Tensor attn = torch::matmul(q, k.transpose(-2, -1)) * (1.0 / std::sqrt(static_cast<double>(d)));
-  attn = attn.softmax(-1);                                                      // [B,h,N,Nr]
+  attn = attn.softmax(-1);                                                        // [B,h,N,Nr]
   torch::Tensor out = torch::matmul(attn, v).transpose(1, 2).reshape({b, n, c});  // [B,N,C]
   return proj_->forward(out);
 }
@@ -101,9 +102,9 @@ MixFfnImpl::MixFfnImpl(int64_t dim, int64_t hidden) : dim_(dim), hidden_(hidden)
 
 torch::Tensor MixFfnImpl::forward(const torch::Tensor& x, int64_t h, int64_t w) {
   const int64_t b = x.size(0), n = x.size(1);
-  torch::Tensor y = fc1_->forward(x);                                          // [B,N,hidden]
-  y = dw_->forward(y.transpose(1, 2).reshape({b, hidden_, h, w}));             // [B,hidden,h,w]
-  y = F::gelu(y.flatten(2).transpose(1, 2));                                   // [B,N,hidden]
+  torch::Tensor y = fc1_->forward(x);                               // [B,N,hidden]
+  y = dw_->forward(y.transpose(1, 2).reshape({b, hidden_, h, w}));  // [B,hidden,h,w]
+  y = F::gelu(y.flatten(2).transpose(1, 2));                        // [B,N,hidden]
   (void)n;
   return fc2_->forward(y);
 }
@@ -138,17 +139,17 @@ SegFormerEncoderImpl::SegFormerEncoderImpl(const ModelConfig& config, int64_t in
     embeds_.push_back(register_module(prefix + "_embed", OverlapPatchEmbed(in, width, s == 0 ? 7 : 3, s == 0 ? 4 : 2)));
     std::vector<MitBlock> stage;
     for (int i = 0; i < config.encoder_depths[s]; ++i) {
-      stage.push_back(register_module(prefix + "_block" + std::to_string(i),
-                                      MitBlock(width, config.encoder_heads[s], config.encoder_sr_ratios[s],
-                                               config.encoder_mlp_ratio)));
+      stage.push_back(register_module(
+          prefix + "_block" + std::to_string(i),
+          MitBlock(width, config.encoder_heads[s], config.encoder_sr_ratios[s], config.encoder_mlp_ratio)));
     }
     blocks_.push_back(stage);
     norms_.push_back(register_module(prefix + "_norm", torch::nn::LayerNorm(torch::nn::LayerNormOptions({width}))));
     head_linears_.push_back(register_module("head_linear" + std::to_string(s), MakeLinear(width, decoder_dim_)));
     in = width;
   }
-  fuse_ = register_module(
-      "head_fuse", torch::nn::Conv2d(torch::nn::Conv2dOptions(4 * decoder_dim_, decoder_dim_, 1).bias(false)));
+  fuse_ = register_module("head_fuse",
+                          torch::nn::Conv2d(torch::nn::Conv2dOptions(4 * decoder_dim_, decoder_dim_, 1).bias(false)));
 }
 
 std::vector<torch::Tensor> SegFormerEncoderImpl::Stages(const torch::Tensor& x) {
@@ -176,10 +177,8 @@ torch::Tensor SegFormerEncoderImpl::forward(const torch::Tensor& x) {
     torch::Tensor y = head_linears_[s]->forward(f.flatten(2).transpose(1, 2));  // [B,n,D]
     y = y.transpose(1, 2).reshape({f.size(0), decoder_dim_, f.size(2), f.size(3)});
     if (s > 0) {
-      y = F::interpolate(y, F::InterpolateFuncOptions()
-                                .size(std::vector<int64_t>{h, w})
-                                .mode(torch::kBilinear)
-                                .align_corners(false));
+      y = F::interpolate(
+          y, F::InterpolateFuncOptions().size(std::vector<int64_t>{h, w}).mode(torch::kBilinear).align_corners(false));
     }
     upsampled[3 - s] = y;
   }

@@ -13,7 +13,9 @@ namespace {
 
 constexpr double kSqrt2 = 1.4142135623730951;
 
-torch::Tensor Act(const torch::Tensor& x) { return F::leaky_relu(x, F::LeakyReLUFuncOptions().negative_slope(0.2)) * kSqrt2; }
+torch::Tensor Act(const torch::Tensor& x) {
+  return F::leaky_relu(x, F::LeakyReLUFuncOptions().negative_slope(0.2)) * kSqrt2;
+}
 
 torch::nn::Conv2d Conv(int64_t in, int64_t out, int64_t k, bool bias = true) {
   return torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, k).padding(k / 2).bias(bias));
@@ -46,9 +48,9 @@ ModulatedConvImpl::ModulatedConvImpl(int64_t in, int64_t out, int64_t kernel, in
 
 torch::Tensor ModulatedConvImpl::forward(const torch::Tensor& x, const torch::Tensor& style) {
   const int64_t b = x.size(0);
-  const torch::Tensor s = modulation_->forward(style);                             // [B,in]
+  const torch::Tensor s = modulation_->forward(style);  // [B,in]
   const double gain = 1.0 / std::sqrt(static_cast<double>(in_ * kernel_ * kernel_));
-  torch::Tensor w = weight_.unsqueeze(0) * gain * s.view({b, 1, in_, 1, 1});       // [B,out,in,k,k]
+  torch::Tensor w = weight_.unsqueeze(0) * gain * s.view({b, 1, in_, 1, 1});  // [B,out,in,k,k]
   if (demodulate_) w = w * torch::rsqrt(w.pow(2).sum({2, 3, 4}, true) + 1e-8);
   torch::Tensor input = x;
   if (upsample_) input = ResizeBilinear(x, 2 * x.size(2), 2 * x.size(3));
@@ -108,7 +110,8 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
 
   first_ = register_module("unet_first", Conv(3, channels_[top], 1));
   for (int64_t l = top; l >= 1; --l) {
-    down_.push_back(register_module("unet_down" + std::to_string(4 << l), ResBlock(channels_[l], channels_[l - 1], -1)));
+    down_.push_back(
+        register_module("unet_down" + std::to_string(4 << l), ResBlock(channels_[l], channels_[l - 1], -1)));
   }
   final_conv_ = register_module("unet_final_conv", Conv(channels_[0], channels_[0], 3));
   final_linear_ = register_module("unet_final_linear", torch::nn::Linear(channels_[0] * 16, num_latent_ * style_dim_));
@@ -133,8 +136,8 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
   to_rgb1_bias_ = register_parameter("to_rgb1_bias", torch::zeros({1, 3, 1, 1}));
   for (int64_t l = 1; l <= top; ++l) {
     const std::string r = std::to_string(4 << l);
-    convs_up_.push_back(register_module(
-        "conv_up" + r, StyleConv(channels_[l - 1], channels_[l], style_dim_, true, 4 << l, seed++)));
+    convs_up_.push_back(
+        register_module("conv_up" + r, StyleConv(channels_[l - 1], channels_[l], style_dim_, true, 4 << l, seed++)));
     convs_.push_back(
         register_module("conv" + r, StyleConv(channels_[l], channels_[l], style_dim_, false, 4 << l, seed++)));
     to_rgbs_.push_back(register_module("to_rgb" + r, ModulatedConv(channels_[l], 3, 1, style_dim_, false, false)));
@@ -143,8 +146,8 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
 }
 
 torch::Tensor SuperResolutionImpl::forward(const torch::Tensor& rgb) {
-  AVATAR_CHECK_INPUT(rgb.dim() == 4 && rgb.size(1) == 3) << "super-resolution input must be [B,3,H,W], got "
-                                                         << rgb.sizes();
+  AVATAR_CHECK_INPUT(rgb.dim() == 4 && rgb.size(1) == 3)
+      << "super-resolution input must be [B,3,H,W], got " << rgb.sizes();
   const int64_t b = rgb.size(0);
   torch::Tensor x = ResizeBilinear(rgb, size_, size_);  // [B,3,S,S]
   torch::Tensor feat = F::leaky_relu(first_->forward(x), F::LeakyReLUFuncOptions().negative_slope(0.2));
@@ -242,8 +245,8 @@ double DualDiscriminatorImpl::Flops() const {
     flops += block->Flops(r, r);
     r /= 2;
   }
-  flops += ConvFlops(channels_[0] + 1, channels_[0], 3, 4, 4) + 2.0 * channels_[0] * 16 * channels_[0] +
-           2.0 * channels_[0];
+  flops +=
+      ConvFlops(channels_[0] + 1, channels_[0], 3, 4, 4) + 2.0 * channels_[0] * 16 * channels_[0] + 2.0 * channels_[0];
   return flops;
 }
 

@@ -22,8 +22,8 @@ std::string MatBytes(const cv::Mat& m) {
 
 }  // namespace
 
-MorphableExpressionSource::MorphableExpressionSource(const morphable::MorphableModel& model,
-                                                     morphable::FitResult fit, morphable::Texture texture)
+MorphableExpressionSource::MorphableExpressionSource(const morphable::MorphableModel& model, morphable::FitResult fit,
+                                                     morphable::Texture texture)
     : model_(model), fit_(std::move(fit)), texture_(std::move(texture)) {
   (void)kRegistered;
 }
@@ -104,7 +104,8 @@ std::shared_ptr<const ExpressionImageSource> MorphableExpressionSource::Load(con
     std::copy(tr.begin(), tr.end(), fit.translation.val);
     std::copy(cam.begin(), cam.end(), fit.camera.begin());
     fit.image_size = cv::Size(size[0], size[1]);
-    for (size_t i = 0; i < colors.size(); i += 3) texture.vertex_colors.emplace_back(colors[i], colors[i + 1], colors[i + 2]);
+    for (size_t i = 0; i < colors.size(); i += 3)
+      texture.vertex_colors.emplace_back(colors[i], colors[i + 1], colors[i + 2]);
     if (uv_size > 0) {
       if (sizes[1] != static_cast<uint64_t>(uv_size) * uv_size * 3 * sizeof(float) ||
           sizes[2] != static_cast<uint64_t>(uv_size) * uv_size) {

@@ -7,8 +7,8 @@
 #include <mutex>
 #include <sstream>
 
-#include <opencv2/imgproc.hpp>
 #include <torch/torch.h>
+#include <opencv2/imgproc.hpp>
 
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
@@ -140,9 +140,12 @@ Preset PresetFromName(const std::string& name) {
 
 const char* PresetName(Preset preset) {
   switch (preset) {
-    case Preset::kPreview: return "preview";
-    case Preset::kStandard: return "standard";
-    case Preset::kFinal: return "final";
+    case Preset::kPreview:
+      return "preview";
+    case Preset::kStandard:
+      return "standard";
+    case Preset::kFinal:
+      return "final";
   }
   return "?";
 }
@@ -385,9 +388,9 @@ Avatar Session::LoadAvatar(const std::filesystem::path& path) const {
   if (src.dim() != 3 || src.size(2) != 3 || src.scalar_type() != torch::kUInt8) {
     throw ModelLoad(file + ": avatar source image is malformed");
   }
-  state->source = cv::Mat(static_cast<int>(src.size(0)), static_cast<int>(src.size(1)), CV_8UC3,
-                          const_cast<void*>(src.data_ptr()))
-                      .clone();
+  state->source =
+      cv::Mat(static_cast<int>(src.size(0)), static_cast<int>(src.size(1)), CV_8UC3, const_cast<void*>(src.data_ptr()))
+          .clone();
   const torch::Tensor& bytes = archive.Get("avatar.expression_source", file);
   if (!kind.empty()) {
     ExpressionSourceLoader loader = nullptr;

@@ -61,10 +61,10 @@ bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoa
 
 // Camera looking at the head from an orbit (degrees; EG3D conventions as in core/render/camera.h).
 struct View {
-  double yaw = 0.0;    // positive: camera moves towards the subject's left (+x)
-  double pitch = 0.0;  // positive: camera above, looking down; |pitch| < 90
-  double roll = 0.0;   // about the viewing axis
-  double radius = 2.7; // distance to the look-at point
+  double yaw = 0.0;     // positive: camera moves towards the subject's left (+x)
+  double pitch = 0.0;   // positive: camera above, looking down; |pitch| < 90
+  double roll = 0.0;    // about the viewing axis
+  double radius = 2.7;  // distance to the look-at point
 };
 
 enum class Preset {
@@ -77,9 +77,9 @@ Preset PresetFromName(const std::string& name);
 const char* PresetName(Preset preset);
 
 struct Frame {
-  cv::Mat bgr;      // [H,W] CV_8UC3
-  cv::Mat opacity;  // [H,W] CV_32FC1 in [0,1] (bilinear-upsampled from the render for kFinal)
-  cv::Mat depth;    // [H,W] CV_32FC1 expected depth along the ray (far plane 3.3 for empty rays)
+  cv::Mat bgr;          // [H,W] CV_8UC3
+  cv::Mat opacity;      // [H,W] CV_32FC1 in [0,1] (bilinear-upsampled from the render for kFinal)
+  cv::Mat depth;        // [H,W] CV_32FC1 expected depth along the ray (far plane 3.3 for empty rays)
   int render_size = 0;  // side of the volume render behind this frame
   bool super_resolved = false;
 };
@@ -154,7 +154,7 @@ class Avatar {
 
 // Inputs of the network part of reconstruction besides the aligned portrait.
 struct SourceFit {
-  std::array<float, 25> camera{};  // source camera C_s as an EG3D label
+  std::array<float, 25> camera{};                            // source camera C_s as an EG3D label
   std::shared_ptr<const ExpressionImageSource> expressions;  // I_exp renderer for this identity
 };
 

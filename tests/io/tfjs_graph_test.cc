@@ -204,6 +204,28 @@ TEST(TfjsGraphOps, ResizeHalfPixelAndChannelPad) {
   }
 }
 
+TEST(TfjsGraphOps, QuantizedWeightsDecode) {
+  // uint8 affine (value = q * scale + min) and float16 weights, added to the input.
+  testing::TempDir dir;
+  Builder b;
+  b.Input("x", {1, 1, 1, 3});
+  b.nodes.push_back({{"name", "q8"}, {"op", "Const"}});
+  b.weights.push_back({{"name", "q8"}, {"shape", {3}}, {"dtype", "float32"},
+                       {"quantization", {{"dtype", "uint8"}, {"scale", 0.5}, {"min", -1.0}}}});
+  b.bin += std::string("\x00\x02\xff", 3);  // -> -1, 0, 126.5
+  b.nodes.push_back({{"name", "h16"}, {"op", "Const"}});
+  b.weights.push_back({{"name", "h16"}, {"shape", {3}}, {"dtype", "float32"}, {"quantization", {{"dtype", "float16"}}}});
+  const torch::Tensor half = torch::tensor({0.25f, -2.0f, 1000.0f}).to(torch::kHalf);
+  b.bin.append(reinterpret_cast<const char*>(half.data_ptr()), 6);
+  b.Op("a", "AddV2", {"x", "q8"});
+  b.Op("out", "AddV2", {"a", "h16"});
+  TfjsGraph g(b.Write(dir.path()));
+  auto y = g.Run(torch::zeros({1, 1, 1, 3}), {"out"})[0].reshape({-1});
+  EXPECT_FLOAT_EQ(y[0].item<float>(), -1.0f + 0.25f);
+  EXPECT_FLOAT_EQ(y[1].item<float>(), 0.0f - 2.0f);
+  EXPECT_FLOAT_EQ(y[2].item<float>(), 126.5f + 1000.0f);
+}
+
 // Expects ModelLoad whose message contains every one of `parts`.
 void ExpectModelLoad(const fs::path& file, const std::vector<std::string>& parts) {
   try {

@@ -110,14 +110,12 @@ TEST(Checkpoint, CorruptForeignAndMismatchedFilesFailCleanly) {
             std::string::npos);
 
   WriteAll(dir.path() / "png.ckpt", std::string("\x89PNG\r\n\x1a\n0000000000000000", 24));
-  EXPECT_NE(ModelLoadMessage([&] { LoadModelCheckpoint(dir.path() / "png.ckpt"); }).find("magic"),
-            std::string::npos);
+  EXPECT_NE(ModelLoadMessage([&] { LoadModelCheckpoint(dir.path() / "png.ckpt"); }).find("magic"), std::string::npos);
 
   std::string newer = bytes;
   newer[8] = 99;  // format version
   WriteAll(dir.path() / "v99.ckpt", newer);
-  EXPECT_NE(ModelLoadMessage([&] { LoadModelCheckpoint(dir.path() / "v99.ckpt"); }).find("version"),
-            std::string::npos);
+  EXPECT_NE(ModelLoadMessage([&] { LoadModelCheckpoint(dir.path() / "v99.ckpt"); }).find("version"), std::string::npos);
 
   // An avatar-kind archive is not a model.
   TensorArchive other;

@@ -79,8 +79,7 @@ TEST(GohaModel, TinyShapesOfEveryBranch) {
   EXPECT_EQ(Shape(hr), (std::vector<int64_t>{1, 3, c.sr_size, c.sr_size}));
   EXPECT_TRUE(torch::isfinite(hr).all().item<bool>());
   DualDiscriminator disc(c);
-  EXPECT_EQ(Shape(disc->forward(torch::cat({hr, hr}), torch::cat({out.rgb, out.rgb}))),
-            (std::vector<int64_t>{2, 1}));
+  EXPECT_EQ(Shape(disc->forward(torch::cat({hr, hr}), torch::cat({out.rgb, out.rgb}))), (std::vector<int64_t>{2, 1}));
 }
 
 TEST(GohaModel, EachAppearancePlaneHasItsOwnUpsampler) {
@@ -101,8 +100,8 @@ TEST(GohaModel, EmptyMatteGivesZeroRasterAndFiniteOutput) {
   const int64_t s = c.image_size;
   const torch::Tensor image = torch::rand({1, 3, s, s}) * 2 - 1;
   const torch::Tensor tc = model->CanonicalPlanes(image);
-  const AppearanceOutput app = model->AppearancePlanes(image, torch::ones({1, 1, s, s}), torch::zeros({1, 1, s, s}),
-                                                       tc, render::FrontalCameras(1));
+  const AppearanceOutput app = model->AppearancePlanes(image, torch::ones({1, 1, s, s}), torch::zeros({1, 1, s, s}), tc,
+                                                       render::FrontalCameras(1));
   EXPECT_EQ(app.foreground.sum().item<int64_t>(), 0);
   EXPECT_TRUE(torch::isfinite(app.planes).all().item<bool>());
 }
@@ -171,7 +170,9 @@ TEST(Rasterize, PlanesTakeFeaturesOfNearestForegroundPointsAndPassGradients) {
   const torch::Tensor fg = torch::nonzero(mask[0]).flatten();
   for (int p = 0; p < 3; ++p) {
     const torch::Tensor xy = torch::stack({points[0].index_select(0, fg).select(1, render::kPlaneAxes[p][0]),
-                                           points[0].index_select(0, fg).select(1, render::kPlaneAxes[p][1])}, 1) * 2.0;
+                                           points[0].index_select(0, fg).select(1, render::kPlaneAxes[p][1])},
+                                          1) *
+                             2.0;
     const auto idx = NearestPointIndicesBruteForce(xy, grid);
     for (int64_t cell = 0; cell < grid * grid; ++cell) {
       const int64_t point = fg[idx[cell]].item<int64_t>();

@@ -66,7 +66,7 @@ TEST(Training, GradientsReachEveryModule) {
   const Losses l = Forward(model, disc, b);
   (l.reconstruction + 0.1 * l.generator_adv).backward();
   std::vector<std::pair<std::string, std::shared_ptr<torch::nn::Module>>> modules = {
-      {"canonical_encoder", model->canonical_encoder.ptr()}, {"canonical_head", model->canonical_head.ptr()},
+      {"canonical_encoder", model->canonical_encoder.ptr()},   {"canonical_head", model->canonical_head.ptr()},
       {"appearance_encoder", model->appearance_encoder.ptr()}, {"expression_encoder", model->expression_encoder.ptr()},
       {"expression_head", model->expression_head.ptr()},       {"decoder", model->decoder.ptr()},
       {"super_resolution", model->super_resolution.ptr()},     {"discriminator", disc.ptr()}};
@@ -78,8 +78,10 @@ TEST(Training, GradientsReachEveryModule) {
       const torch::Tensor g = item.value().grad();
       ASSERT_TRUE(g.defined()) << name << "." << item.key() << " has no gradient";
       ASSERT_TRUE(torch::isfinite(g).all().item<bool>()) << name << "." << item.key();
-      if (g.abs().sum().item<double>() > 0) ++nonzero;
-      else ADD_FAILURE() << name << "." << item.key() << " has an all-zero gradient";
+      if (g.abs().sum().item<double>() > 0)
+        ++nonzero;
+      else
+        ADD_FAILURE() << name << "." << item.key() << " has an all-zero gradient";
     }
     EXPECT_GT(tensors, 0) << name;
     EXPECT_EQ(nonzero, tensors) << name;

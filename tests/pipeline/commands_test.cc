@@ -53,9 +53,8 @@ TEST(Commands, RenderWithoutAnInstalledModelSaysSo) {
   const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
   for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
   RunContext ctx;
-  const Avatar avatar =
-      session.ReconstructFromAnalysis(PortraitFromAlignedImage(cv::Mat(64, 64, CV_8UC3, cv::Scalar(90, 120, 160))),
-                                      fit, ctx);
+  const Avatar avatar = session.ReconstructFromAnalysis(
+      PortraitFromAlignedImage(cv::Mat(64, 64, CV_8UC3, cv::Scalar(90, 120, 160))), fit, ctx);
   session.SaveAvatar(avatar, dir / "a.avatar");
   const auto r = RunProcess(kExe + " render '" + (dir / "a.avatar").string() + "' -o '" + (dir / "o.png").string() +
                             "' --data-dir '" + dir.path().string() + "'");

@@ -42,7 +42,7 @@ TEST(MorphableSource, RendersNeutralAndControlledExpressions) {
   const cv::Mat neutral = source.Render({}, 64);
   ASSERT_EQ(neutral.type(), CV_8UC3);
   ASSERT_EQ(neutral.rows, 64);
-  EXPECT_GT(cv::countNonZero(neutral.reshape(1)), 100);  // a face, not an empty image
+  EXPECT_GT(cv::countNonZero(neutral.reshape(1)), 100);        // a face, not an empty image
   EXPECT_EQ(neutral.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 0));  // black background
   const cv::Mat open = source.Render({{{"jawOpen", 3.0f}}}, 64);
   EXPECT_GT(cv::norm(neutral, open, cv::NORM_L1), 0.0);

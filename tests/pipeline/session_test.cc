@@ -22,8 +22,7 @@ namespace {
 using avatar::testing::SyntheticExpressionSource;
 using avatar::testing::TempDir;
 
-const bool kLoaderRegistered =
-    RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
+const bool kLoaderRegistered = RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
 
 SessionOptions TinyOptions(int seed = 0) {
   SessionOptions o;
@@ -246,7 +245,8 @@ TEST(Session, HardCasesStayFinite) {
   Session session(TinyOptions());
   RunContext ctx;
   // A tiny 8x8 portrait and an all-black one with an empty matte.
-  const Avatar small = session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait(8)), FrontalFit(), ctx);
+  const Avatar small =
+      session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait(8)), FrontalFit(), ctx);
   face::AlignedPortrait black = PortraitFromAlignedImage(cv::Mat::zeros(512, 512, CV_8UC3));
   black.matte = cv::Mat::zeros(512, 512, CV_32FC1);
   const Avatar dark = session.ReconstructFromAnalysis(black, FrontalFit(), ctx);
@@ -281,13 +281,15 @@ TEST(Session, ConcurrentAnimateMatchesSerial) {
   std::vector<View> views;
   for (int i = 0; i < 6; ++i) views.push_back(View{-40.0 + 15 * i, 5.0 * (i % 3)});
   std::vector<cv::Mat> serial;
-  for (const auto& v : views) serial.push_back(session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, v, Preset::kStandard).bgr);
+  for (const auto& v : views)
+    serial.push_back(session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, v, Preset::kStandard).bgr);
   std::vector<cv::Mat> parallel(views.size());
   std::vector<std::thread> threads;
   for (int t = 0; t < 2; ++t) {
     threads.emplace_back([&, t] {
       for (size_t i = t; i < views.size(); i += 2) {
-        parallel[i] = session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, views[i], Preset::kStandard).bgr;
+        parallel[i] =
+            session.Animate(avatar, {{{"smile", 0.2f * (views.size() % 2)}}}, views[i], Preset::kStandard).bgr;
       }
     });
   }

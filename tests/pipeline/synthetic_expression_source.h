@@ -19,9 +19,12 @@ class SyntheticExpressionSource : public ExpressionImageSource {
   cv::Mat Render(const Expression& expression, int size) const override {
     float jaw = 0.0f, smile = 0.0f;
     for (const auto& [name, value] : expression.controls) {
-      if (name == "jawOpen") jaw = value;
-      else if (name == "smile") smile = value;
-      else throw InvalidInput("unknown expression control '" + name + "' (jawOpen, smile)");
+      if (name == "jawOpen")
+        jaw = value;
+      else if (name == "smile")
+        smile = value;
+      else
+        throw InvalidInput("unknown expression control '" + name + "' (jawOpen, smile)");
     }
     cv::Mat img = cv::Mat::zeros(size, size, CV_8UC3);
     const cv::Point c(size / 2, size / 2);
