@@ -30,9 +30,7 @@ bool JobRunner::start(const QString& title, Job job) {
   auto ctx = std::make_shared<RunContext>([this](const Progress& p) {
     QMetaObject::invokeMethod(
         this,
-        [this, p] {
-          emit progress(QString::fromStdString(p.stage), p.fraction, QString::fromStdString(p.message));
-        },
+        [this, p] { emit progress(QString::fromStdString(p.stage), p.fraction, QString::fromStdString(p.message)); },
         Qt::QueuedConnection);
   });
   ctx_ = ctx;

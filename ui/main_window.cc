@@ -300,8 +300,8 @@ void MainWindow::createMenus() {
   });
 
   QMenu* drive = menuBar()->addMenu(tr("&Driving"));
-  QAction* play = drive->addAction(tr("&Play / Pause"), this,
-                                   [this] { driving_panel_->setPlaying(!driving_panel_->isPlaying()); });
+  QAction* play =
+      drive->addAction(tr("&Play / Pause"), this, [this] { driving_panel_->setPlaying(!driving_panel_->isPlaying()); });
   play->setShortcut(QKeySequence(Qt::Key_Space));
   QAction* back = drive->addAction(tr("Step &Back"), this, [this] { stepDriver(-1); });
   back->setShortcut(QKeySequence(Qt::Key_BracketLeft));
@@ -356,9 +356,14 @@ bool MainWindow::reconstruct() {
   const BackendOptions backend = backendOptions();
   preview_->setAnalyzerFactory(DrivingAnalyzers(backend));
   built_.reset();
-  return jobs_->start(kReconstructTitle, [this, portrait, backend](RunContext& ctx) {
+  const std::string name = QFileInfo(portrait_path_).fileName().toStdString();
+  return jobs_->start(kReconstructTitle, [this, portrait, backend, name](RunContext& ctx) {
     // Runs on the job thread; built_ is read on the GUI thread only after `finished`.
-    built_ = CreateFrameSource(portrait, backend, ctx);
+    try {
+      built_ = CreateFrameSource(portrait, backend, ctx);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput(name + ": " + e.what());
+    }
   });
 }
 
@@ -568,9 +573,9 @@ void MainWindow::showOpenDialog() {
 }
 
 void MainWindow::showOpenDriverDialog() {
-  const QString path = QFileDialog::getOpenFileName(this, tr("Open Driving Video"),
-                                                    QSettings().value("driving/lastFolder").toString(),
-                                                    tr("Videos (*.mp4 *.mov *.avi *.mkv *.webm *.m4v)"));
+  const QString path =
+      QFileDialog::getOpenFileName(this, tr("Open Driving Video"), QSettings().value("driving/lastFolder").toString(),
+                                   tr("Videos (*.mp4 *.mov *.avi *.mkv *.webm *.m4v)"));
   if (path.isEmpty()) return;
   QSettings().setValue("driving/lastFolder", QFileInfo(path).absolutePath());
   openDriver(path);

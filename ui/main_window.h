@@ -147,7 +147,7 @@ class MainWindow : public QMainWindow {
   std::shared_ptr<const FrameSource> source_;  // What the viewport renders.
   std::shared_ptr<const FrameSource> built_;   // Written by the reconstruction job.
   QString export_output_;
-  std::atomic<qint64> export_frames_{0};      // Written by the export job.
+  std::atomic<qint64> export_frames_{0};  // Written by the export job.
   quint64 last_request_ = 0;
   quint64 last_shown_ = 0;
   QImage last_frame_;

@@ -37,7 +37,9 @@ void AddSliderRow(QFormLayout* form, const QString& label, QSlider* slider, cons
   auto* value = new QLabel(slider->parentWidget());
   value->setMinimumWidth(44);
   value->setAlignment(Qt::AlignRight | Qt::AlignVCenter);
-  auto show = [value, unit, scale](int v) { value->setText(QString::number(v * scale, 'f', scale < 1 ? 2 : 0) + unit); };
+  auto show = [value, unit, scale](int v) {
+    value->setText(QString::number(v * scale, 'f', scale < 1 ? 2 : 0) + unit);
+  };
   show(slider->value());
   QObject::connect(slider, &QSlider::valueChanged, value, show);
   auto* row = new QHBoxLayout;
@@ -51,8 +53,8 @@ void AddSliderRow(QFormLayout* form, const QString& label, QSlider* slider, cons
 
 QString PrettyName(const QString& control) {
   static const std::map<QString, QString> kNames = {
-      {"jawOpen", "&Jaw open"},   {"smile", "S&mile"},          {"frown", "&Frown"},
-      {"pucker", "Puc&ker"},      {"mouthWide", "Mouth &wide"}, {"browRaise", "&Brow raise"},
+      {"jawOpen", "&Jaw open"},     {"smile", "S&mile"},          {"frown", "&Frown"},
+      {"pucker", "Puc&ker"},        {"mouthWide", "Mouth &wide"}, {"browRaise", "&Brow raise"},
       {"browFrown", "Brow fr&own"}, {"blinkLeft", "Blink &left"}, {"blinkRight", "Blink ri&ght"},
       {"eyesWide", "E&yes wide"}};
   auto it = kNames.find(control);
@@ -152,7 +154,9 @@ PosePanel::PosePanel(QWidget* parent) : QWidget(parent) {
   });
   form->addRow(reset);
   for (QSlider* s : {yaw_, pitch_, roll_, zoom_}) {
-    connect(s, &QSlider::valueChanged, this, [this] { emit poseChanged(pose()); });
+    connect(s, &QSlider::valueChanged, this, [this] {
+      if (!silent_) emit poseChanged(pose());
+    });
   }
 }
 
@@ -166,11 +170,13 @@ ViewPose PosePanel::pose() const {
 }
 
 void PosePanel::setPose(const ViewPose& pose) {
-  const QSignalBlocker a(yaw_), b(pitch_), c(roll_), d(zoom_);
+  // Not QSignalBlocker: the value read-outs must follow; only poseChanged is held back.
+  silent_ = true;
   yaw_->setValue(static_cast<int>(std::lround(pose.yaw)));
   pitch_->setValue(static_cast<int>(std::lround(pose.pitch)));
   roll_->setValue(static_cast<int>(std::lround(pose.roll)));
   zoom_->setValue(static_cast<int>(std::lround(pose.zoom * 100.0)));
+  silent_ = false;
 }
 
 // ---------------------------------------------------------------------------- ExpressionPanel
@@ -185,11 +191,14 @@ ExpressionPanel::ExpressionPanel(QWidget* parent) : QWidget(parent) {
   auto* layout = new QVBoxLayout(this);
   auto* form = new QFormLayout;
   for (const QString& name : ControlNames()) {
-    QSlider* s = MakeSlider(0, 100, 0, tr("Expression control '%1' from 0 to 1 (Alt+underlined letter)").arg(name), this);
+    QSlider* s =
+        MakeSlider(0, 100, 0, tr("Expression control '%1' from 0 to 1 (Alt+underlined letter)").arg(name), this);
     s->setObjectName(name);
     s->setEnabled(false);
     AddSliderRow(form, PrettyName(name), s, QString(), 0.01);
-    connect(s, &QSlider::valueChanged, this, &ExpressionPanel::expressionChanged);
+    connect(s, &QSlider::valueChanged, this, [this] {
+      if (!silent_) emit expressionChanged();
+    });
     sliders_[name] = s;
   }
   layout->addLayout(form);
@@ -228,10 +237,11 @@ FrameExpression ExpressionPanel::expression() const {
 }
 
 void ExpressionPanel::setExpression(const FrameExpression& expression) {
+  silent_ = true;  // The read-outs follow; expressionChanged is held back.
   for (auto& [name, slider] : sliders_) {
-    const QSignalBlocker block(slider);
     slider->setValue(static_cast<int>(std::lround(expression.Get(name.toStdString()) * 100.0f)));
   }
+  silent_ = false;
 }
 
 QSlider* ExpressionPanel::slider(const QString& name) const {
@@ -332,8 +342,9 @@ DrivingPanel::DrivingPanel(QWidget* parent) : QWidget(parent) {
   mode_ = new QComboBox(this);
   mode_->addItem(tr("Relative"), true);
   mode_->addItem(tr("Absolute"), false);
-  mode_->setToolTip(tr("Relative: apply the driver's change from its neutral frame; absolute: apply its expression "
-                       "as measured (Alt+A)"));
+  mode_->setToolTip(
+      tr("Relative: apply the driver's change from its neutral frame; absolute: apply its expression "
+         "as measured (Alt+A)"));
   auto* m_label = new QLabel(tr("Tr&ansfer"), this);
   m_label->setBuddy(mode_);
   smoothing_ = MakeSlider(0, 95, 30, tr("Temporal smoothing of the driver while playing (Alt+H)"), this);

@@ -36,6 +36,7 @@ class SourcePanel : public QWidget {
   void setPreset(const QString& preset);
   bool randomWeights() const;
   QPushButton* reconstructButton() const { return reconstruct_; }
+  QCheckBox* randomWeightsBox() const { return random_weights_; }
 
  signals:
   void reconstructRequested();
@@ -74,6 +75,7 @@ class PosePanel : public QWidget {
   QSlider* pitch_ = nullptr;
   QSlider* roll_ = nullptr;
   QSlider* zoom_ = nullptr;
+  bool silent_ = false;  // setPose() in progress.
 };
 
 // One slider per named expression control, Neutral, and expression presets.
@@ -106,6 +108,7 @@ class ExpressionPanel : public QWidget {
 
  private:
   std::map<QString, QSlider*> sliders_;
+  bool silent_ = false;  // setExpression() in progress.
 };
 
 // Driving video: load, play/pause, timeline, neutral frame, transfer mode, smoothing.

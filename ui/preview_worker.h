@@ -22,16 +22,16 @@ namespace avatar::ui {
 
 // One viewport request.
 struct PreviewRequest {
-  FrameRequest frame;          // Camera, expression, size.
-  int64_t driver_frame = -1;   // Driver frame to apply (-1 = none).
-  bool driver_pose = false;    // Apply the driver's head pose (else only its expression).
+  FrameRequest frame;         // Camera, expression, size.
+  int64_t driver_frame = -1;  // Driver frame to apply (-1 = none).
+  bool driver_pose = false;   // Apply the driver's head pose (else only its expression).
 };
 
 // One finished viewport frame.
 struct PreviewFrame {
-  QImage image;            // RGB888, the rendered colour on black.
-  QImage alpha;            // Grayscale8 opacity.
-  QImage driver_image;     // The driver's video frame (RGB888), null without a driver.
+  QImage image;         // RGB888, the rendered colour on black.
+  QImage alpha;         // Grayscale8 opacity.
+  QImage driver_image;  // The driver's video frame (RGB888), null without a driver.
   int64_t driver_frame = -1;
   bool driver_face_found = true;
   std::vector<QPointF> landmarks;  // Output pixels.

@@ -18,8 +18,9 @@ constexpr double kDegreesPerPixel = 0.3;
 Viewport::Viewport(QWidget* parent) : QOpenGLWidget(parent) {
   setMinimumSize(256, 256);
   setFocusPolicy(Qt::StrongFocus);
-  setToolTip(tr("Viewport: drop a portrait photo or a driving video here.\n"
-                "Drag to orbit, wheel to zoom, double-click to reset the view."));
+  setToolTip(
+      tr("Viewport: drop a portrait photo or a driving video here.\n"
+         "Drag to orbit, wheel to zoom, double-click to reset the view."));
 }
 
 void Viewport::setImage(const QImage& image) {
@@ -97,8 +98,8 @@ void Viewport::paintGL() {
     QFont f = painter.font();
     f.setBold(true);
     painter.setFont(f);
-    const QRect box = painter.fontMetrics().boundingRect(rect().adjusted(8, 8, -8, -8), Qt::AlignLeft | Qt::TextWordWrap,
-                                                         label_);
+    const QRect box =
+        painter.fontMetrics().boundingRect(rect().adjusted(8, 8, -8, -8), Qt::AlignLeft | Qt::TextWordWrap, label_);
     painter.fillRect(box.adjusted(-4, -2, 4, 2), QColor(0, 0, 0, 170));
     painter.setPen(QColor(255, 200, 80));
     painter.drawText(box, Qt::AlignLeft | Qt::TextWordWrap, label_);

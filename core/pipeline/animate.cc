@@ -73,8 +73,8 @@ ExportStats ExportAnimation(const FrameSource& source, Driver* driver, const Ani
   output.audio_from = (plan.keep_audio && driver != nullptr) ? driver->AudioSource() : std::string();
   if (output.ResolvedFormat() != "mp4") output.audio_from.clear();
 
-  const int64_t total = driver != nullptr ? driver->FrameCount()
-                                          : std::max<int64_t>(1, std::llround(plan.seconds * output.fps));
+  const int64_t total =
+      driver != nullptr ? driver->FrameCount() : std::max<int64_t>(1, std::llround(plan.seconds * output.fps));
   const int64_t expected = plan.max_frames > 0 ? std::min(plan.max_frames, total) : total;
   DrivingSample sample;
   // Progress: the exporter reports frame i of `expected`; sources only check ctx for cancel.
@@ -130,7 +130,11 @@ AnimateResult RunAnimation(const AnimateOptions& options, RunContext& ctx) {
   std::shared_ptr<const FrameSource> source;
   {
     RunContext::ProgressRange range(ctx, 0.0, 0.1);
-    source = CreateFrameSource(portrait, options.backend, ctx);
+    try {
+      source = CreateFrameSource(portrait, options.backend, ctx);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput("portrait '" + options.source + "': " + e.what());
+    }
   }
   std::unique_ptr<Driver> driver;
   if (!options.driver.empty()) {

@@ -57,8 +57,8 @@ FrameRequest PlanFrame(const FrameSource& source, const AnimationPlan& plan, con
 // audio are filled in here from the plan and the driver). `driver` may be null.
 // Throws InvalidOptions, InvalidInput, Io, Cancelled; a failed or cancelled export leaves
 // nothing under the target name and no temporary files.
-ExportStats ExportAnimation(const FrameSource& source, Driver* driver, const AnimationPlan& plan,
-                            ExportOptions output, RunContext& ctx);
+ExportStats ExportAnimation(const FrameSource& source, Driver* driver, const AnimationPlan& plan, ExportOptions output,
+                            RunContext& ctx);
 
 // Options of `avatar-studio animate`.
 struct AnimateOptions {

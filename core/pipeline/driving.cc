@@ -162,11 +162,11 @@ VideoDriver::VideoDriver(const fs::path& path, std::unique_ptr<FrameAnalyzer> an
     ctx.Report("analyse neutral frame", 0.0);
     reader_->Seek(options.neutral_frame);
     cv::Mat neutral;
-    AVATAR_CHECK_INPUT(reader_->Read(neutral)) << "cannot read the neutral frame " << options.neutral_frame << " of '"
-                                                << path.string() << "'";
+    AVATAR_CHECK_INPUT(reader_->Read(neutral))
+        << "cannot read the neutral frame " << options.neutral_frame << " of '" << path.string() << "'";
     FrameMeasurement m = analyzer_->Measure(neutral, ctx);
     AVATAR_CHECK_INPUT(m.face_found) << "no face found in the neutral frame " << options.neutral_frame << " of '"
-                                      << path.string() << "'; choose another frame with --neutral-frame";
+                                     << path.string() << "'; choose another frame with --neutral-frame";
     transfer_.SetNeutral(m);
     analyzer_->Reset();
     reader_->Seek(0);
@@ -208,8 +208,9 @@ std::unique_ptr<Driver> OpenDriver(const fs::path& path, const FrameAnalyzerFact
   std::string ext = path.extension().string();
   for (auto& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   if (ext == ".json") return std::make_unique<KeyframeDriver>(path);
-  AVATAR_CHECK_INPUT(IsVideoPath(path)) << "driver '" << path.string()
-                                        << "' is neither a video (.mp4, .mov, .avi, .mkv, .webm, .m4v) nor keyframes (.json)";
+  AVATAR_CHECK_INPUT(IsVideoPath(path))
+      << "driver '" << path.string()
+      << "' is neither a video (.mp4, .mov, .avi, .mkv, .webm, .m4v) nor keyframes (.json)";
   std::unique_ptr<FrameAnalyzer> analyzer = analyzers ? analyzers(ctx) : nullptr;
   return std::make_unique<VideoDriver>(path, std::move(analyzer), options, ctx);
 }

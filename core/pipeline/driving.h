@@ -27,9 +27,9 @@ class VideoReader;
 
 // One frame of a driver.
 struct DrivingSample {
-  ViewPose pose;          // Head pose of the driver (relative to its neutral frame in relative mode).
+  ViewPose pose;               // Head pose of the driver (relative to its neutral frame in relative mode).
   FrameExpression expression;  // Expression to apply.
-  bool face_found = true; // False when the analyser found no face (the previous sample is held).
+  bool face_found = true;      // False when the analyser found no face (the previous sample is held).
 };
 
 struct DrivingOptions {
@@ -52,9 +52,9 @@ struct DrivingOptions {
 
 // What a driving video frame measures. Implemented with face analysis + morphable fitting.
 struct FrameMeasurement {
-  bool face_found = false;         // False: no face in this frame.
-  ViewPose pose;                   // Head pose in degrees (zoom 1).
-  std::vector<float> coefficients; // Morphable-model expression coefficients.
+  bool face_found = false;          // False: no face in this frame.
+  ViewPose pose;                    // Head pose in degrees (zoom 1).
+  std::vector<float> coefficients;  // Morphable-model expression coefficients.
 };
 
 // Analyses one driving frame (BGR8). Stateful implementations (trackers) get frames in
@@ -135,8 +135,8 @@ class KeyframeDriver : public Driver {
 class VideoDriver : public Driver {
  public:
   // Throws like VideoReader; InvalidOptions when the neutral frame is past the end.
-  VideoDriver(const std::filesystem::path& path, std::unique_ptr<FrameAnalyzer> analyzer,
-              const DrivingOptions& options, RunContext& ctx);
+  VideoDriver(const std::filesystem::path& path, std::unique_ptr<FrameAnalyzer> analyzer, const DrivingOptions& options,
+              RunContext& ctx);
   ~VideoDriver() override;
   double Fps() const override;
   int64_t FrameCount() const override;

@@ -44,16 +44,17 @@ struct FrameExpression {
     auto it = controls.find(name);
     return it == controls.end() ? 0.0f : it->second;
   }
-  bool operator==(const FrameExpression& o) const { return controls == o.controls && coefficients == o.coefficients && coefficients_absolute == o.coefficients_absolute;
+  bool operator==(const FrameExpression& o) const {
+    return controls == o.controls && coefficients == o.coefficients && coefficients_absolute == o.coefficients_absolute;
   }
 };
 
 // One render request.
 struct FrameRequest {
-  ViewPose view;          // Camera.
+  ViewPose view;               // Camera.
   FrameExpression expression;  // Expression.
-  int width = 512;        // Output width in pixels.
-  int height = 512;       // Output height in pixels.
+  int width = 512;             // Output width in pixels.
+  int height = 512;            // Output height in pixels.
 };
 
 // One rendered frame.
@@ -70,8 +71,8 @@ struct RenderedFrame {
 
 // What the source panel draws over the portrait thumbnail (portrait pixel coordinates).
 struct SourceOverlay {
-  std::vector<cv::Rect2f> faces;         // Detected face boxes.
-  std::vector<cv::Point2f> landmarks;    // Landmarks of the face used.
+  std::vector<cv::Rect2f> faces;       // Detected face boxes.
+  std::vector<cv::Point2f> landmarks;  // Landmarks of the face used.
 };
 
 class FrameSource {

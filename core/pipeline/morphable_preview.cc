@@ -34,15 +34,17 @@ cv::Matx33d HeadRotation(const ViewPose& pose) {
   // World: y up, the face looks towards +z at the frontal camera, image right = +x. A
   // positive standard rotation about y moves the nose to image right, about x moves it
   // down, about z turns the face counter-clockwise: our positive angles are the opposites.
-  return RotY(-pose.yaw / kDegrees) * RotX(-pose.pitch / kDegrees) * RotZ(-pose.roll / kDegrees);
+  // Order: yaw first, then pitch about the world x axis, then roll about the viewing axis,
+  // which is exactly an orbit camera (azimuth, elevation, roll) around a still head.
+  return RotZ(-pose.roll / kDegrees) * RotX(-pose.pitch / kDegrees) * RotY(-pose.yaw / kDegrees);
 }
 
 ViewPose PoseFromRotation(const cv::Matx33d& r) {
-  // r = Ry(a) Rx(b) Rz(c): r(0,2) = sin a cos b, r(2,2) = cos a cos b, r(1,2) = -sin b,
-  // r(1,0) = cos b sin c, r(1,1) = cos b cos c.
-  const double b = std::asin(std::clamp(-r(1, 2), -1.0, 1.0));
-  const double a = std::atan2(r(0, 2), r(2, 2));
-  const double c = std::atan2(r(1, 0), r(1, 1));
+  // r = Rz(c) Rx(b) Ry(a): r(2,1) = sin b, r(2,0) = -cos b sin a, r(2,2) = cos b cos a,
+  // r(0,1) = -sin c cos b, r(1,1) = cos c cos b.
+  const double b = std::asin(std::clamp(r(2, 1), -1.0, 1.0));
+  const double a = std::atan2(-r(2, 0), r(2, 2));
+  const double c = std::atan2(-r(0, 1), r(1, 1));
   ViewPose p;
   p.yaw = -a * kDegrees;
   p.pitch = -b * kDegrees;
@@ -125,6 +127,33 @@ RenderedFrame MorphablePreviewSource::Render(const FrameRequest& request, RunCon
   frame.landmarks = frame.vertices;
   frame.triangles = model_.topology().triangles;
   return frame;
+}
+
+std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
+                                                      const std::vector<float>& beta) {
+  const int k = model.num_expression();
+  AVATAR_CHECK_INPUT(static_cast<int>(beta.size()) == k)
+      << "expected " << k << " expression coefficients, got " << beta.size();
+  const auto& controls = model.controls();
+  std::map<std::string, float> out;
+  if (controls.empty()) return out;
+  const int n = static_cast<int>(controls.size());
+  // Least squares in the space whitened by the expression std, so every component counts
+  // by how unusual it is; solved with SVD (control directions may be nearly dependent).
+  cv::Mat d(k, n, CV_64F), b(k, 1, CV_64F);
+  for (int r = 0; r < k; ++r) {
+    const double w = 1.0 / std::max(1e-6f, model.expression_std()[r]);
+    b.at<double>(r) = beta[r] * w;
+    for (int c = 0; c < n; ++c) d.at<double>(r, c) = controls[c].direction[r] * w;
+  }
+  cv::Mat pseudo_inverse;
+  cv::invert(d, pseudo_inverse, cv::DECOMP_SVD);  // Minimum-norm solution when under-determined.
+  const cv::Mat x = pseudo_inverse * b;
+  for (int c = 0; c < n; ++c) {
+    const double v = std::clamp(x.at<double>(c), 0.0, 1.0);
+    if (v > 0.0) out[controls[c].name] = static_cast<float>(v);
+  }
+  return out;
 }
 
 MorphableFrameAnalyzer::MorphableFrameAnalyzer(const morphable::MorphableModel& model, LandmarkFn landmarks_of,

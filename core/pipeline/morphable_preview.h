@@ -5,8 +5,9 @@
 // always labelled "Preview: morphable model (neural model not trained yet)".
 //
 // Pose convention (ViewPose): the head turns by yaw (> 0: towards the image's left), pitch
-// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera;
-// zoom moves the camera closer (distance 2.7 / zoom).
+// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera,
+// applied in that order about the world axes (the same picture as an orbit camera with
+// azimuth, elevation and roll); zoom moves the camera closer (distance 2.7 / zoom).
 
 #include <memory>
 #include <string>
@@ -31,8 +32,8 @@ class MorphablePreviewSource : public FrameSource {
  public:
   // `model` must outlive the source (LoadDefaultModel's models live for the process).
   // `fit` and `texture` describe the portrait; `overlay` is drawn over the source thumbnail.
-  MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit,
-                         morphable::Texture texture, SourceOverlay overlay = {});
+  MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit, morphable::Texture texture,
+                         SourceOverlay overlay = {});
 
   std::string Label() const override;
   bool SupportsPose() const override { return true; }
@@ -52,6 +53,12 @@ class MorphablePreviewSource : public FrameSource {
   SourceOverlay overlay_;
   ViewPose source_pose_;
 };
+
+// The named controls whose combination best matches expression coefficients `beta` (least
+// squares over the control directions, values clamped to [0,1]). Lets a driver measured as
+// coefficients drive a renderer that only takes named controls (the neural session).
+std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
+                                                      const std::vector<float>& beta);
 
 // The label every morphable preview frame carries.
 inline constexpr const char* kMorphablePreviewLabel = "Preview: morphable model (neural model not trained yet)";

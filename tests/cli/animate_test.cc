@@ -1,9 +1,13 @@
 // `avatar-studio animate`: the real executable on the bundled sample portrait and short
 // driving clips made here with ffmpeg (with and without a sound track). Outputs are checked
 // with ffprobe and by reading them back.
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -13,7 +17,9 @@
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
 #include "core/pipeline/animate.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
+#include "morphable/morphable_test_util.h"
 
 namespace avatar {
 namespace {
@@ -22,12 +28,29 @@ using avatar::testing::ProcessResult;
 using avatar::testing::TempDir;
 namespace fs = std::filesystem;
 
+// The morphable model these tests render with: a synthetic one written once per process
+// (smooth random bases on the installed facemesh topology), so the tests exercise the whole
+// animate path - real face analysis of the sample portrait, fit, texture, rendering, export -
+// without depending on the committed model's contents.
+const std::string& SyntheticModelFile() {
+  static const std::string path = [] {
+    const fs::path file = fs::temp_directory_path() / ("avatar_cli_model_" + std::to_string(::getpid()) + ".avmm");
+    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(file);
+    ::setenv("AVATAR_MORPHABLE_MODEL", file.c_str(), 1);
+    return file.string();
+  }();
+  return path;
+}
+
 ProcessResult Studio(const std::string& args) {
-  return avatar::testing::RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
-                                     "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2");
+  return avatar::testing::RunProcess(
+      std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
+      "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2 AVATAR_MORPHABLE_MODEL='" +
+          SyntheticModelFile() + "'");
 }
 
 std::string Portrait() {
+  SyntheticModelFile();  // In-process calls (RunAnimation, CreateFrameSource) use it too.
   return DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)").string();
 }
 
@@ -43,8 +66,8 @@ fs::path MakeClip(const TempDir& dir, const std::string& name, int frames, int f
   }
   args.insert(args.end(), {"-map", "0:v:0"});
   if (audio) args.insert(args.end(), {"-map", "1:a:0", "-c:a", "aac"});
-  args.insert(args.end(), {"-vf", "fps=" + std::to_string(fps), "-t", std::to_string(seconds), "-c:v",
-                           "libx264", "-pix_fmt", "yuv420p", (dir / name).string()});
+  args.insert(args.end(), {"-vf", "fps=" + std::to_string(fps), "-t", std::to_string(seconds), "-c:v", "libx264",
+                           "-pix_fmt", "yuv420p", (dir / name).string()});
   EXPECT_EQ(RunProgram("ffmpeg", args), 0) << "ffmpeg could not make the test clip";
   return dir / name;
 }
@@ -63,12 +86,13 @@ TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
   const fs::path clip = MakeClip(dir, "talk.mp4", 30, 15, true);
   ASSERT_TRUE(ProbeHasAudio(clip));
   const fs::path out = dir / "out.mp4";
-  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
-                        "' --width 96 --height 96");
+  const auto r =
+      Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() + "' --width 96 --height 96");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("Wrote 30 frames at 15 fps"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n"
-                                                          << r.out;
+  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n" << r.out;
+  EXPECT_NE(r.out.find("Preview: morphable model"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("timing and audio only"), std::string::npos) << "the driver was not measured\n" << r.out;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,15/1,30"), std::string::npos) << probe;
   EXPECT_NE(probe.find("audio"), std::string::npos) << "the driver's audio is missing:\n" << probe;
@@ -81,8 +105,8 @@ TEST(Animate, SilentDriverGivesASilentClipWithItsFrameCount) {
   TempDir dir;
   const fs::path clip = MakeClip(dir, "silent.mp4", 12, 24, false);
   const fs::path out = dir / "out.mp4";
-  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
-                        "' --width 64 --height 64");
+  const auto r =
+      Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() + "' --width 64 --height 64");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,24/1,12"), std::string::npos) << probe;
@@ -104,15 +128,25 @@ TEST(Animate, KeyframesDriveThePngSequence) {
       "keys": [{"time": 0, "expression": {"smile": 0}}, {"time": 1, "yaw": 20, "expression": {"smile": 1}}]})";
   const fs::path out = dir / "frames";
   const auto r = Studio("animate '" + Portrait() + "' '" + (dir / "keys.json").string() + "' -o '" + out.string() +
-                        "' --width 64 --height 48");
+                        "' --width 128 --height 96");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   int count = 0;
   for (const auto& e : fs::directory_iterator(out)) count += e.path().extension() == ".png" ? 1 : 0;
   EXPECT_EQ(count, 6);  // t = 0, 0.2, ..., 1.0.
   const cv::Mat png = cv::imread((out / "frame_000000.png").string(), cv::IMREAD_UNCHANGED);
   ASSERT_EQ(png.type(), CV_8UC4);
-  EXPECT_EQ(png.cols, 64);
-  EXPECT_EQ(png.rows, 48);
+  EXPECT_EQ(png.cols, 128);
+  EXPECT_EQ(png.rows, 96);
+  std::vector<cv::Mat> channels;
+  cv::split(png, channels);
+  const cv::Mat& alpha = channels[3];
+  const int partial = cv::countNonZero((alpha > 0) & (alpha < 255));
+  EXPECT_GT(partial, 20) << "the head's edge must have partial opacity";
+  EXPECT_GT(cv::countNonZero(alpha == 255), 500) << "the head is missing";
+  EXPECT_EQ(alpha.at<uchar>(0, 0), 0) << "the background must be transparent";
+  // The last frame (yaw 20, full smile) differs from the first.
+  const cv::Mat last = cv::imread((out / "frame_000005.png").string(), cv::IMREAD_UNCHANGED);
+  EXPECT_GT(cv::norm(png, last, cv::NORM_L1) / (128.0 * 96.0), 1.0);
 }
 
 TEST(Animate, CancelLeavesNoFileAndNoTemporaries) {
@@ -131,6 +165,24 @@ TEST(Animate, CancelLeavesNoFileAndNoTemporaries) {
     EXPECT_THROW(RunAnimation(o, ctx), Cancelled);
     EXPECT_EQ(dir.List(), std::vector<std::string>{"talk.mp4"}) << target;
   }
+}
+
+TEST(Animate, ReconstructionStopsAtTheNextStageWhenCancelled) {
+  const cv::Mat portrait = cv::imread(Portrait());
+  ASSERT_FALSE(portrait.empty());
+  std::vector<std::string> stages;
+  std::chrono::steady_clock::time_point asked;
+  RunContext ctx([&](const Progress& p) {
+    stages.push_back(p.stage);
+    if (stages.size() == 2) {
+      asked = std::chrono::steady_clock::now();
+      ctx.RequestCancel();
+    }
+  });
+  EXPECT_THROW(CreateFrameSource(portrait, BackendOptions{}, ctx), Cancelled);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - asked).count();
+  std::printf("reconstruction stopped %.1f ms after the cancel request (stages seen: %zu)\n", ms, stages.size());
+  EXPECT_EQ(stages.size(), 2u) << "work went on after the cancel request";
 }
 
 TEST(Animate, ExportFailureLeavesNoFile) {
@@ -165,7 +217,33 @@ TEST(Animate, BadInputsGiveClearMessagesAndExitCodes) {
   r = Studio("animate '" + Portrait() + "' '" + (dir / "notes.txt").string() + "'" + out);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("notes.txt"), std::string::npos) << r.err;
-  EXPECT_EQ(dir.List(), std::vector<std::string>{"bad.json"});
+  // A photo without a face: a clear error naming the photo, nothing written.
+  cv::Mat sky(240, 320, CV_8UC3, cv::Scalar(230, 180, 120));
+  cv::imwrite((dir / "sky.png").string(), sky);
+  r = Studio("animate '" + (dir / "sky.png").string() + "' --view orbit" + out);
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.err.find("sky.png"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("face"), std::string::npos) << r.err;
+  std::vector<std::string> names = dir.List();
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"bad.json", "sky.png"}));
+}
+
+TEST(Animate, RandomWeightsOnlyOnRequestAndLabelledSo) {
+  TempDir dir;
+  const fs::path out = dir / "random.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' --random-weights --view orbit --seconds 0.4 --fps 5 -o '" +
+                        out.string() + "' --width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("RANDOM weights"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("not a result"), std::string::npos) << r.out;
+  EXPECT_NE(Probe(out).find("video,5/1,2"), std::string::npos) << Probe(out);
+  // Without the flag the network is never used.
+  const auto preview = Studio("animate '" + Portrait() + "' --view orbit --seconds 0.2 --fps 5 -o '" +
+                              (dir / "p.mp4").string() + "' --width 64 --height 64");
+  ASSERT_EQ(preview.exit_code, 0) << preview.err;
+  EXPECT_EQ(preview.out.find("RANDOM"), std::string::npos) << preview.out;
+  EXPECT_NE(preview.out.find("Preview: morphable model"), std::string::npos) << preview.out;
 }
 
 TEST(Animate, HelpDescribesTheOptions) {

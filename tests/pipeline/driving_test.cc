@@ -32,7 +32,7 @@ TEST(Keyframes, InterpolateLinearlyAndHoldTheEnds) {
   EXPECT_DOUBLE_EQ(d.At(2.0).pose.zoom, 1.5);
   EXPECT_FLOAT_EQ(d.At(2.5).expression.Get("smile"), 0.75f);
   EXPECT_FLOAT_EQ(d.At(2.0).expression.Get("jawOpen"), 0.25f);  // Missing in a key = 0.
-  EXPECT_DOUBLE_EQ(d.At(3.7).pose.yaw, 30.0);                     // After the last key: held.
+  EXPECT_DOUBLE_EQ(d.At(3.7).pose.yaw, 30.0);                   // After the last key: held.
   RunContext ctx;
   DrivingSample s;
   int64_t n = 0;

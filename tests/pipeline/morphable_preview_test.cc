@@ -160,7 +160,8 @@ TEST(MorphablePreview, BadRequestsAreClearErrors) {
 
 TEST(MorphablePreview, TurntablePngSequenceHasVaryingAlphaAtTheHeadsEdge) {
   const MorphablePreviewSource source = SourceAt({});
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("avatar_orbit_" + std::to_string(::getpid()));
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("avatar_orbit_" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   AnimationPlan plan;
@@ -183,6 +184,21 @@ TEST(MorphablePreview, TurntablePngSequenceHasVaryingAlphaAtTheHeadsEdge) {
   EXPECT_GT(cv::countNonZero(ca[3] == 255), 500);
   EXPECT_GT(cv::norm(ca[3], cb[3], cv::NORM_L1), 1000.0) << "the turntable did not turn";
   std::filesystem::remove_all(dir);
+}
+
+TEST(ControlsFromCoefficients, RecoversAMixOfControls) {
+  // Twelve expression components: the ten synthetic controls are independent directions.
+  static const morphable::MorphableModel m = mt::SyntheticModel(mt::InstalledTopology(), 2, 12);
+  const std::map<std::string, float> truth = {{"jawOpen", 0.6f}, {"browRaise", 0.3f}, {"blinkLeft", 1.0f}};
+  const auto got = ControlsFromCoefficients(m, m.ExpressionFromControls(truth));
+  ASSERT_EQ(got.size(), truth.size());
+  for (const auto& [name, v] : truth) EXPECT_NEAR(got.at(name), v, 1e-4) << name;
+  // Out-of-range mixes are clamped into [0,1].
+  const auto clamped = ControlsFromCoefficients(m, m.ExpressionFromControls({{"smile", 3.0f}, {"frown", -1.0f}}));
+  EXPECT_FLOAT_EQ(clamped.at("smile"), 1.0f);
+  EXPECT_EQ(clamped.count("frown"), 0u);
+  EXPECT_TRUE(ControlsFromCoefficients(m, m.ZeroBeta()).empty());
+  EXPECT_THROW(ControlsFromCoefficients(m, {1.0f}), InvalidInput);
 }
 
 TEST(MorphableFrameAnalyzer, MeasuresPoseAndExpressionOrReportsNoFace) {

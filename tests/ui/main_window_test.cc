@@ -1,8 +1,8 @@
 // Starts the real main window under Xvfb, opens the sample portrait through the drag and
 // drop path, grabs the window and checks the portrait's pixels are in the viewport.
 #include <QDropEvent>
-#include <QScreen>
 #include <QMimeData>
+#include <QScreen>
 #include <QSettings>
 #include <QSignalSpy>
 #include <QStandardPaths>

@@ -1,0 +1,44 @@
+#pragma once
+// The neural network behind the studio's FrameSource interface: Session::Reconstruct once per
+// portrait, Session::Animate per frame. Until trained weights exist it runs only when the user
+// explicitly asks for random weights, and every frame is labelled as such.
+
+#include <memory>
+#include <string>
+
+#include "core/morphable/morphable_model.h"
+#include "core/pipeline/frame_source.h"
+#include "core/pipeline/session.h"
+
+namespace avatar {
+
+class SessionFrameSource : public FrameSource {
+ public:
+  // `session` renders `avatar`; `random_weights` only changes the label. With `model`, raw
+  // driver coefficients are turned into named controls (ControlsFromCoefficients).
+  SessionFrameSource(std::shared_ptr<const Session> session, Avatar avatar, bool random_weights,
+                     const morphable::MorphableModel* model = nullptr);
+
+  std::string Label() const override;
+  bool SupportsPose() const override { return true; }
+  std::vector<std::string> ExpressionControls() const override { return avatar_.ControlNames(); }
+  ViewPose SourcePose() const override { return source_pose_; }
+  // Named controls and the camera drive the network; raw driver coefficients become named
+  // controls through the morphable model (without one they are ignored).
+  RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+
+  // Our head-pose convention -> the session's orbit camera (exposed for tests).
+  static View ToView(const ViewPose& pose);
+
+ private:
+  std::shared_ptr<const Session> session_;
+  Avatar avatar_;
+  bool random_weights_;
+  const morphable::MorphableModel* model_;
+  ViewPose source_pose_;
+};
+
+// The label of random-weight frames.
+inline constexpr const char* kRandomWeightsLabel = "Neural network with RANDOM weights (untrained): not a result";
+
+}  // namespace avatar
