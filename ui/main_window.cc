@@ -266,6 +266,12 @@ void MainWindow::createMenus() {
   reconstruct_action_ = avatar->addAction(tr("&Reconstruct"), this, &MainWindow::reconstruct);
   reconstruct_action_->setShortcut(QKeySequence(Qt::CTRL | Qt::Key_R));
   reconstruct_action_->setEnabled(false);
+  reconstruct_on_open_ = avatar->addAction(tr("Reconstruct on &Open"));
+  reconstruct_on_open_->setCheckable(true);
+  reconstruct_on_open_->setChecked(QSettings().value("avatar/reconstruct_on_open", true).toBool());
+  reconstruct_on_open_->setToolTip(tr("Start reconstruction as soon as a portrait is opened or dropped"));
+  connect(reconstruct_on_open_, &QAction::toggled, this,
+          [](bool on) { QSettings().setValue("avatar/reconstruct_on_open", on); });
   cancel_action_ = avatar->addAction(tr("&Cancel Job"), this, &MainWindow::cancelJob);
   cancel_action_->setShortcut(QKeySequence(Qt::Key_Escape));
   cancel_action_->setEnabled(false);
@@ -340,7 +346,7 @@ bool MainWindow::openPortrait(const QString& path, bool reconstruct_now) {
     // Until reconstruction finishes the viewport shows the photo itself, labelled so.
     setFrameSource(std::make_shared<PortraitFrameSource>(bgr));
     emit portraitLoaded(path);
-    if (reconstruct_now) reconstruct();
+    if (reconstruct_now && reconstructOnOpen()) reconstruct();
     return true;
   } catch (const std::exception& e) {
     status_label_->setText(tr("Could not open %1").arg(QFileInfo(path).fileName()));
@@ -349,6 +355,10 @@ bool MainWindow::openPortrait(const QString& path, bool reconstruct_now) {
     return false;
   }
 }
+
+void MainWindow::setReconstructOnOpen(bool on) { reconstruct_on_open_->setChecked(on); }
+
+bool MainWindow::reconstructOnOpen() const { return reconstruct_on_open_->isChecked(); }
 
 bool MainWindow::reconstruct() {
   if (portrait_.empty() || jobs_->isBusy()) return false;

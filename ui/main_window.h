@@ -51,6 +51,12 @@ class MainWindow : public QMainWindow {
   bool openPortrait(const QString& path, bool reconstruct = true);
   // Starts reconstruction of the loaded portrait on the job worker (false if busy/none).
   bool reconstruct();
+  // Whether opening a portrait (File > Open, recent files, drag and drop, --open) starts its
+  // reconstruction at once: Avatar > Reconstruct on Open, kept in the settings (default on).
+  // Off, the photo stays in the viewport until Reconstruct is chosen (useful with the slow
+  // paper configuration).
+  void setReconstructOnOpen(bool on);
+  bool reconstructOnOpen() const;
   // Loads a driving video (decoded and analysed on the preview worker).
   void openDriver(const QString& path);
   // Starts an export of the current avatar with the loaded driver (if any).
@@ -138,6 +144,7 @@ class MainWindow : public QMainWindow {
   QPushButton* cancel_button_ = nullptr;
   QAction* show_landmarks_ = nullptr;
   QAction* show_mesh_ = nullptr;
+  QAction* reconstruct_on_open_ = nullptr;
   QAction* export_action_ = nullptr;
   QAction* reconstruct_action_ = nullptr;
   QAction* cancel_action_ = nullptr;

@@ -53,6 +53,9 @@ class MainWindowTest : public QObject {
 
     MainWindow window;
     window.setDialogsEnabled(false);
+    // This test is about the photo reaching the viewport; the studio test covers the
+    // reconstruction a drop starts by default (which then replaces the photo).
+    window.setReconstructOnOpen(false);
     window.resize(1280, 720);
     window.show();
     QVERIFY(QTest::qWaitForWindowExposed(&window));
