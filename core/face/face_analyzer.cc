@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <memory>
+#include <mutex>
 #include <numeric>
 
 #include <opencv2/imgproc.hpp>
@@ -12,6 +15,7 @@
 #include "core/io/data_paths.h"
 #include "core/io/tfjs_graph.h"
 #include "core/util/error.h"
+#include "core/util/options.h"
 #include "core/util/timer.h"
 
 namespace avatar::face {
@@ -376,6 +380,23 @@ TrackedFace FaceTracker::Track(const cv::Mat& bgr, double t) {
   }
   out.pose = pose;
   return out;
+}
+
+const FaceAnalyzer& SharedFaceAnalyzer(const FaceAnalyzerOptions& options) {
+  static std::mutex mutex;
+  static std::map<std::string, std::unique_ptr<FaceAnalyzer>> analyzers;
+  const std::string key = options.data_dir + "\n" + options::ToJson(options).dump();
+  std::lock_guard<std::mutex> lock(mutex);
+  auto& slot = analyzers[key];
+  if (!slot) {
+    try {
+      slot = std::make_unique<FaceAnalyzer>(options);
+    } catch (...) {
+      analyzers.erase(key);
+      throw;
+    }
+  }
+  return *slot;
 }
 
 }  // namespace avatar::face

@@ -123,6 +123,11 @@ class FaceAnalyzer {
 // metric. Throws InvalidInput for empty or mismatched vectors.
 float IdentitySimilarity(const std::vector<float>& a, const std::vector<float>& b);
 
+// One analyzer per distinct options (data folder included) for the whole process: the models
+// load once and every caller (the session, the studio's workers, the command line) shares it;
+// its const methods are thread-safe. Throws what the constructor throws (nothing is kept then).
+const FaceAnalyzer& SharedFaceAnalyzer(const FaceAnalyzerOptions& options);
+
 // The main face: the detection with the best rank (box side / image long side minus half the
 // distance of its centre from the image centre / image long side). -1 if `faces` is empty.
 int MainFaceIndex(const std::vector<Detection>& faces, const cv::Size& image);

@@ -1,8 +1,5 @@
 #include "core/pipeline/source_analysis.h"
 
-#include <map>
-#include <mutex>
-
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/morphable/morphable.h"
@@ -11,31 +8,15 @@
 
 namespace avatar {
 
-namespace {
-
-// Face models load once per data folder and stay for the process (FaceAnalyzer is thread-safe).
-const face::FaceAnalyzer& Analyzer(const std::string& data_dir) {
-  static std::mutex mutex;
-  static std::map<std::string, std::unique_ptr<face::FaceAnalyzer>> analyzers;
-  std::lock_guard<std::mutex> lock(mutex);
-  auto& slot = analyzers[data_dir];
-  if (!slot) {
-    face::FaceAnalyzerOptions options;
-    options.data_dir = data_dir;
-    slot = std::make_unique<face::FaceAnalyzer>(options);
-  }
-  return *slot;
-}
-
-}  // namespace
-
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, RunContext& ctx) {
   AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "the portrait must be a non-empty 8-bit BGR image";
   SourceAnalysis out;
   {
     RunContext::ProgressRange range(ctx, 0.0, 0.8);
     ctx.Report("analyse face", 0.0, "loading face models");
-    out.portrait = Analyzer(data_dir).AnalyzePortrait(bgr, ctx);
+    face::FaceAnalyzerOptions options;
+    options.data_dir = data_dir;
+    out.portrait = face::SharedFaceAnalyzer(options).AnalyzePortrait(bgr, ctx);
   }
   ctx.Report("fit morphable model", 0.8);
   const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));

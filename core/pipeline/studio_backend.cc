@@ -17,21 +17,13 @@
 namespace avatar {
 namespace {
 
-// Face models load once per process and data folder; FaceAnalyzer's const methods are
-// thread-safe, so the studio's workers and the command line share one.
+// The preview textures the unmatted crop and needs no identity: skip both networks.
 const face::FaceAnalyzer& SharedAnalyzer(const std::string& data_dir) {
-  static std::mutex mutex;
-  static std::map<std::string, std::unique_ptr<face::FaceAnalyzer>> analyzers;
-  std::lock_guard<std::mutex> lock(mutex);
-  auto& slot = analyzers[data_dir];
-  if (!slot) {
-    face::FaceAnalyzerOptions options;
-    options.data_dir = data_dir;
-    options.matte = false;      // The preview textures the unmatted crop.
-    options.embedding = false;  // Identity is not needed to preview.
-    slot = std::make_unique<face::FaceAnalyzer>(options);
-  }
-  return *slot;
+  face::FaceAnalyzerOptions options;
+  options.data_dir = data_dir;
+  options.matte = false;
+  options.embedding = false;
+  return face::SharedFaceAnalyzer(options);
 }
 
 cv::Point2f ToImage(const cv::Matx23d& crop_from_image, const cv::Point2f& p) {

