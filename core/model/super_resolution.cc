@@ -105,24 +105,28 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
   const int log_size = Log2(size_);
   num_levels_ = log_size - 1;  // resolutions 4, 8, ..., S
   num_latent_ = 2 * log_size - 2;
-  for (int64_t l = 0; l < num_levels_; ++l) channels_.push_back(config.SrChannels(static_cast<int>(4 << l)));
+  for (int64_t l = 0; l < num_levels_; ++l) {
+    channels_.push_back(config.SrChannels(static_cast<int>(4 << l)));
+    // GFPGANv1-clean's U-Net and SFT branches run at half the StyleGAN widths (unet_narrow 0.5).
+    unet_.push_back(std::max<int64_t>(1, channels_.back() / 2));
+  }
   const int64_t top = num_levels_ - 1;
 
-  first_ = register_module("unet_first", Conv(3, channels_[top], 1));
+  first_ = register_module("unet_first", Conv(3, unet_[top], 1));
   for (int64_t l = top; l >= 1; --l) {
-    down_.push_back(
-        register_module("unet_down" + std::to_string(4 << l), ResBlock(channels_[l], channels_[l - 1], -1)));
+    down_.push_back(register_module("unet_down" + std::to_string(4 << l), ResBlock(unet_[l], unet_[l - 1], -1)));
   }
-  final_conv_ = register_module("unet_final_conv", Conv(channels_[0], channels_[0], 3));
-  final_linear_ = register_module("unet_final_linear", torch::nn::Linear(channels_[0] * 16, num_latent_ * style_dim_));
+  final_conv_ = register_module("unet_final_conv", Conv(unet_[0], unet_[0], 3));
+  final_linear_ = register_module("unet_final_linear", torch::nn::Linear(unet_[0] * 16, num_latent_ * style_dim_));
   for (int64_t l = 1; l <= top; ++l) {
     const std::string r = std::to_string(4 << l);
-    up_.push_back(register_module("unet_up" + r, ResBlock(channels_[l - 1], channels_[l], +1)));
+    up_.push_back(register_module("unet_up" + r, ResBlock(unet_[l - 1], unet_[l], +1)));
+    // SFT modulates the upper half of the StyleGAN channels at this resolution.
     const int64_t half = channels_[l] - channels_[l] / 2;
     auto branch = [&](const std::string& name) {
-      torch::nn::Sequential seq(Conv(channels_[l], channels_[l], 3),
+      torch::nn::Sequential seq(Conv(unet_[l], unet_[l], 3),
                                 torch::nn::LeakyReLU(torch::nn::LeakyReLUOptions().negative_slope(0.2)),
-                                Conv(channels_[l], half, 3));
+                                Conv(unet_[l], half, 3));
       return register_module(name + r, seq);
     };
     cond_scale_.push_back(branch("sft_scale"));
@@ -183,20 +187,21 @@ torch::Tensor SuperResolutionImpl::forward(const torch::Tensor& rgb) {
 }
 
 std::vector<FlopEntry> SuperResolutionImpl::Flops() const {
-  double enc = ConvFlops(3, channels_.back(), 1, size_, size_);
+  double enc = ConvFlops(3, unet_.back(), 1, size_, size_);
   int64_t r = size_;
   for (const auto& block : down_) {
     enc += block->Flops(r, r);
     r /= 2;
   }
-  enc += ConvFlops(channels_[0], channels_[0], 3, 4, 4) + 2.0 * channels_[0] * 16 * num_latent_ * style_dim_;
+  enc += ConvFlops(unet_[0], unet_[0], 3, 4, 4) + 2.0 * unet_[0] * 16 * num_latent_ * style_dim_;
   double dec = 0.0;
   r = 4;
   for (size_t i = 0; i < up_.size(); ++i) {
     dec += up_[i]->Flops(r, r);
     r *= 2;
+    const int64_t u = unet_[i + 1];
     const int64_t c = channels_[i + 1];
-    dec += 2 * (ConvFlops(c, c, 3, r, r) + ConvFlops(c, c - c / 2, 3, r, r));
+    dec += 2 * (ConvFlops(u, u, 3, r, r) + ConvFlops(u, c - c / 2, 3, r, r));
   }
   double sg = conv1_->Flops(4, 4) + to_rgb1_->Flops(4, 4);
   r = 4;

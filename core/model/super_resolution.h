@@ -15,7 +15,8 @@
 // Noise: one fixed N(0,1) map per layer drawn once from a seeded generator and stored as a
 // buffer (the release draws new noise per frame, which flickers); its scale is learned.
 // Channels at resolution r: config.SrChannels(r) (= GFPGAN's table with channel multiplier 2
-// for the paper config). The auxiliary per-scale RGB outputs of GFPGAN (used only by its
+// for the paper config) in the StyleGAN2 decoder; the U-Net and the SFT branches run at half
+// those widths, as GFPGANv1-clean does (86.4 M parameters at 512 for `paper`). The auxiliary per-scale RGB outputs of GFPGAN (used only by its
 // restoration losses) are omitted.
 //
 // DualDiscriminator: input = concat(high-res image, low-res render upsampled to S) [B,6,S,S];
@@ -85,6 +86,7 @@ class SuperResolutionImpl : public torch::nn::Module {
  private:
   int64_t size_, num_levels_, style_dim_, num_latent_;
   std::vector<int64_t> channels_;  // channels_[l] at resolution 4 << l, l = 0..num_levels_-1
+  std::vector<int64_t> unet_;      // U-Net/SFT widths: channels_[l] / 2 (GFPGANv1-clean)
   torch::nn::Conv2d first_{nullptr}, final_conv_{nullptr};
   torch::nn::Linear final_linear_{nullptr};
   std::vector<ResBlock> down_, up_;

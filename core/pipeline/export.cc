@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -113,15 +114,44 @@ class Mp4Sink : public FrameSink {
   bool finished_ = false;
 };
 
+// "frames/" and "frames" name the same folder; the work folder is made next to it, so the
+// trailing separators go (a path that is only a root stays as it is).
+fs::path FolderTarget(const std::string& output) {
+  fs::path p(output);
+  while (!p.has_filename() && p.has_parent_path() && p != p.root_path()) p = p.parent_path();
+  return p;
+}
+
+// The file names a PNG-sequence export writes.
+bool IsFrameName(const std::string& name) {
+  if (name.size() != 16 || name.compare(0, 6, "frame_") != 0 || name.compare(12, 4, ".png") != 0) return false;
+  return std::all_of(name.begin() + 6, name.begin() + 12, [](char c) { return c >= '0' && c <= '9'; });
+}
+
+// An existing folder is replaced only when it is empty or holds nothing but an earlier export's
+// frames: anything else in it is the user's and must not be deleted.
+void RequireReplaceableFolder(const fs::path& folder) {
+  std::error_code ec;
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!it->is_regular_file(ec) || !IsFrameName(name)) {
+      throw Io("cannot export a PNG sequence to '" + folder.string() + "': the folder holds '" + name +
+               "', which is not a frame of an earlier export; choose an empty or new folder");
+    }
+  }
+  if (ec) throw Io("cannot read the folder '" + folder.string() + "': " + ec.message());
+}
+
 class PngSequenceSink : public FrameSink {
  public:
   PngSequenceSink(const ExportOptions& options, int width, int height)
-      : target_(options.output), width_(width), height_(height) {
+      : target_(FolderTarget(options.output)), width_(width), height_(height) {
     RequireParentFolder(target_);
     std::error_code ec;
     if (fs::exists(target_, ec) && !fs::is_directory(target_, ec)) {
       throw Io("cannot export a PNG sequence to '" + target_.string() + "': a file with that name exists");
     }
+    if (fs::is_directory(target_, ec)) RequireReplaceableFolder(target_);
     work_ = WorkPath(target_, ".frames");
     fs::create_directories(work_, ec);
     if (ec) throw Io("cannot create a folder next to '" + target_.string() + "': " + ec.message());

@@ -1,6 +1,8 @@
 #include "core/pipeline/export.h"
 
 #include <gtest/gtest.h>
+
+#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -87,6 +89,42 @@ TEST(Export, PngSequenceReplacesAnEarlierExport) {
   ExportFrames(Frames(5), 5, 64, 48, o, ctx);
   ExportFrames(Frames(2), 2, 64, 48, o, ctx);
   EXPECT_FALSE(std::filesystem::exists(dir / "frames" / "frame_000004.png"));
+  EXPECT_EQ(dir.List(), std::vector<std::string>{"frames"});
+}
+
+TEST(Export, PngFolderWorksWithOrWithoutTrailingSlashExistingOrNot) {
+  for (const char* name : {"frames/", "frames"}) {
+    for (bool existing : {false, true}) {
+      TempDir dir;
+      if (existing) std::filesystem::create_directory(dir / "frames");
+      ExportOptions o;
+      o.output = (dir / name).string();
+      RunContext ctx;
+      ASSERT_NO_THROW(ExportFrames(Frames(3), 3, 64, 48, o, ctx)) << name << " existing=" << existing;
+      EXPECT_TRUE(std::filesystem::exists(dir / "frames" / "frame_000002.png")) << name;
+      EXPECT_EQ(dir.List(), std::vector<std::string>{"frames"}) << name << " existing=" << existing;
+      // A second export replaces the first one through the same spelling.
+      ASSERT_NO_THROW(ExportFrames(Frames(2), 2, 64, 48, o, ctx)) << name;
+      EXPECT_FALSE(std::filesystem::exists(dir / "frames" / "frame_000002.png")) << name;
+      EXPECT_EQ(dir.List(), std::vector<std::string>{"frames"});
+    }
+  }
+}
+
+TEST(Export, PngSequenceNeverDeletesAFolderWithTheUsersFiles) {
+  TempDir dir;
+  std::filesystem::create_directory(dir / "frames");
+  { std::ofstream(dir / "frames" / "notes.txt") << "mine"; }
+  ExportOptions o;
+  o.output = (dir / "frames/").string();
+  RunContext ctx;
+  try {
+    ExportFrames(Frames(2), 2, 64, 48, o, ctx);
+    FAIL() << "an export over a folder with other files must be refused";
+  } catch (const Io& e) {
+    EXPECT_NE(std::string(e.what()).find("notes.txt"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(std::filesystem::exists(dir / "frames" / "notes.txt"));
   EXPECT_EQ(dir.List(), std::vector<std::string>{"frames"});
 }
 
