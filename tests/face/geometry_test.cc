@@ -57,10 +57,12 @@ TEST(HeadPose, RecoversSyntheticRotations) {
     EXPECT_NEAR(p.pitch, 0.0, 1e-3);
     EXPECT_NEAR(p.roll, 0.0, 1e-3);
   }
-  // Pitch sign: the face looking up (forehead moving away, chin towards the camera).
+  // Pitch sign (face_types.h: pitch > 0 is up). The synthetic rotation about x by +p moves the
+  // forehead (image y < 0) towards the camera (z < 0) and the chin away: the face looks down,
+  // so the measured pitch is -p.
   for (double pitch : {-30.0, -10.0, 20.0}) {
     const HeadPose p = HeadPoseFromLandmarks(SyntheticFace(0, pitch, 0));
-    EXPECT_NEAR(std::abs(p.pitch), std::abs(pitch), 1e-3);
+    EXPECT_NEAR(p.pitch, -pitch, 1e-3);
     EXPECT_NEAR(p.yaw, 0.0, 1e-3);
   }
   for (double roll : {-40.0, 12.0, 80.0}) {

@@ -46,9 +46,9 @@ Losses Forward(GohaModel& model, DualDiscriminator& disc, const Batch& b) {
   const torch::Tensor tc = model->CanonicalPlanes(b.source);
   const torch::Tensor tp = model->AppearancePlanes(b.source, b.eye_mouth, b.matte, tc, b.source_cam).planes;
   const torch::Tensor te = model->ExpressionPlanes(b.expression);
-  const auto ic = model->Render(tc, b.target_cam);
-  const auto ice = model->Render(tc + te, b.target_cam);
-  const auto icep = model->Render(tc + te + tp, b.target_cam);
+  const auto ic = model->Render(tc, b.target_cam, /*resolution=*/0, /*deterministic=*/false);
+  const auto ice = model->Render(tc + te, b.target_cam, /*resolution=*/0, /*deterministic=*/false);
+  const auto icep = model->Render(tc + te + tp, b.target_cam, /*resolution=*/0, /*deterministic=*/false);
   const torch::Tensor hr = model->SuperResolve(icep.rgb);
   Losses l;
   l.reconstruction = (ic.rgb - b.target).abs().mean() + (ice.rgb - b.target).abs().mean() +
@@ -104,12 +104,13 @@ TEST(Training, TinyModelOverfitsOneBatch) {
     opt.step();
     const double v = loss.item<double>();
     if (step == 0) first = v;
-    last = v;
     best = std::min(best, v);
+    // The end of the run counts, not a lucky step: the mean of the last 10 losses.
+    if (step >= steps - 10) last += v / 10.0;
   }
   std::cout << "overfit: loss " << first << " -> " << last << " (best " << best << ") in " << steps << " steps\n";
   EXPECT_TRUE(std::isfinite(last));
-  EXPECT_LT(best, first / 10.0) << "loss did not fall 10x";
+  EXPECT_LT(last, first / 10.0) << "loss (mean of the last 10 steps) did not fall 10x";
 }
 
 }  // namespace

@@ -62,8 +62,25 @@ TEST(Texture, SampledTextureReproducesTheSourceView) {
   ASSERT_GT(n, 5000);
   std::cout << "[texture] mean abs colour error of the re-render " << err / n << "\n";
   EXPECT_LT(err / n, 0.02);
-  // Vertex colours agree with the pattern where visible.
-  EXPECT_EQ(tex.vertex_colors.size(), 468u);
+  // Vertex colours agree with the pattern where visible: a vertex whose texel was sampled from
+  // the image carries the pattern's colour at its UV (8-bit image, bilinear sampling).
+  ASSERT_EQ(tex.vertex_colors.size(), 468u);
+  const Topology& topo = m.topology();
+  const Texture pattern = PatternTexture(128);
+  std::vector<double> errors;
+  for (int i = 0; i < 468; ++i) {
+    const cv::Point2f uv = topo.uv[i];
+    const int tx = std::clamp(static_cast<int>(uv.x * tex.uv_visible.cols), 0, tex.uv_visible.cols - 1);
+    const int ty = std::clamp(static_cast<int>(uv.y * tex.uv_visible.rows), 0, tex.uv_visible.rows - 1);
+    if (tex.uv_visible.at<uint8_t>(ty, tx) == 0) continue;
+    const int px = std::clamp(static_cast<int>(uv.x * 128), 0, 127), py = std::clamp(static_cast<int>(uv.y * 128), 0, 127);
+    errors.push_back(cv::norm(tex.vertex_colors[i] - pattern.uv_image.at<cv::Vec3f>(py, px), cv::NORM_INF));
+  }
+  ASSERT_GT(errors.size(), 200u) << "too few visible vertices to compare";
+  std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+  std::cout << "[texture] median vertex colour error " << errors[errors.size() / 2] << " over " << errors.size()
+            << " visible vertices\n";
+  EXPECT_LT(errors[errors.size() / 2], 0.03);
   // A mismatched image is refused.
   EXPECT_THROW(SampleTexture(m, fit, cv::Mat(10, 10, CV_8UC3)), InvalidInput);
 }

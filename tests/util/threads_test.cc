@@ -3,6 +3,9 @@
 #include <ATen/Parallel.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <thread>
+
 #include <cstdlib>
 
 #include "core/util/error.h"
@@ -43,7 +46,10 @@ TEST_F(ThreadsTest, EnvironmentOverridesTheDefault) {
 
 TEST_F(ThreadsTest, DefaultIsAllCores) {
   unsetenv("AVATAR_THREADS");
-  EXPECT_GE(ConfigureThreads(0), 1);
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  EXPECT_EQ(ConfigureThreads(0), cores);
+  EXPECT_EQ(at::get_num_threads(), cores);
+  EXPECT_EQ(ConfiguredThreads(), cores);
 }
 
 TEST_F(ThreadsTest, MalformedValuesAreRejected) {
