@@ -2,11 +2,13 @@
 // Writes reference outputs of the TF.js graph models for fixed input tensors, computed by
 // TensorFlow.js itself (pure-JS CPU backend), so the C++ runtime (core/io/tfjs_graph) can be
 // checked against them. Inputs are synthetic float tensors (not images) so that image decoding
-// and resizing play no part in the comparison.
+// and resizing play no part in the comparison. nsfwjs's Keras layers model (MobileNetV2) is run
+// through tfjs-layers, and the outputs of chosen layers are written (core/model/mobilenet_v2).
 //
 // Usage: node make_goldens.js --models DIR --out DIR --deps DIR
-//   --deps: an npm prefix holding @tensorflow/tfjs-core, -backend-cpu and -converter (4.22.0).
-// Output: OUT/manifest.json and OUT/<model>.<tensor>.f32 (raw little-endian float32).
+//   --deps: an npm prefix holding @tensorflow/tfjs-core, -backend-cpu, -converter and -layers (4.22.0).
+// Output: OUT/manifest.json and OUT/<model>.<tensor>.f32 (raw little-endian float32). The layers
+// model goes under manifest.layers_models (absent when nsfwjs is not installed).
 'use strict';
 const fs = require('fs');
 const path = require('path');
@@ -26,6 +28,12 @@ const deps = path.join(arg('deps'), 'node_modules');
 const tf = require(path.join(deps, '@tensorflow/tfjs-core'));
 require(path.join(deps, '@tensorflow/tfjs-backend-cpu'));
 const converter = require(path.join(deps, '@tensorflow/tfjs-converter'));
+const layers = require(path.join(deps, '@tensorflow/tfjs-layers'));
+
+// nsfwjs's MobileNetV2 (ImageNet through block_10): layers whose outputs are compared.
+const NSFWJS_TAPS = ['Conv1_relu', 'expanded_conv_project_BN', 'block_1_expand_relu', 'block_2_add',
+  'block_3_expand_relu', 'block_5_add', 'block_6_expand_relu', 'block_9_add', 'block_10_depthwise_relu',
+  'block_10_project_BN'];
 
 // Models the app runs, their input node, value range and the outputs compared.
 const MODELS = [
@@ -84,6 +92,51 @@ function fixedInput(shape, range, seed) {
   return data;
 }
 
+// The nsfwjs files are CommonJS modules: model.min.js exports {modelTopology, weightsManifest},
+// the shard module exports the weights as one base64 string.
+async function nsfwjsGoldens(manifest, seed) {
+  const dir = path.join(modelsDir, 'nsfwjs');
+  const modelFile = path.join(dir, 'model.min.js');
+  if (!fs.existsSync(modelFile)) {
+    console.log(`goldens: ${modelFile} not installed (scripts/setup); nsfwjs goldens skipped`);
+    return;
+  }
+  const artifacts = require(modelFile);
+  const specs = [];
+  const buffers = [];
+  for (const group of artifacts.weightsManifest) {
+    for (const p of group.paths) buffers.push(Buffer.from(require(path.join(dir, p + '.min.js')), 'base64'));
+    specs.push(...group.weights);
+  }
+  const all = Buffer.concat(buffers);
+  const handler = {
+    load: async () => ({
+      modelTopology: artifacts.modelTopology,
+      weightSpecs: specs,
+      weightData: all.buffer.slice(all.byteOffset, all.byteOffset + all.byteLength),
+    }),
+  };
+  const model = await layers.loadLayersModel(handler);
+  const taps = layers.model({inputs: model.inputs, outputs: NSFWJS_TAPS.map((n) => model.getLayer(n).output)});
+  const dims = [1, 224, 224, 3];
+  const data = fixedInput(dims, [-1, 1], seed);
+  const input = tf.tensor(data, dims, 'float32');
+  const outs = taps.predict(input);
+  const entry = {name: 'nsfwjs', model: 'nsfwjs/model.min.js', inputs: [], outputs: []};
+  const inFile = 'nsfwjs.input.f32';
+  fs.writeFileSync(path.join(outDir, inFile), Buffer.from(data.buffer));
+  entry.inputs.push({name: 'input_1', shape: dims, file: inFile});
+  for (let i = 0; i < outs.length; ++i) {
+    const values = await outs[i].data();
+    const file = `nsfwjs.${NSFWJS_TAPS[i]}.f32`;
+    fs.writeFileSync(path.join(outDir, file), Buffer.from(new Float32Array(values).buffer));
+    entry.outputs.push({name: NSFWJS_TAPS[i], shape: outs[i].shape, file});
+  }
+  manifest.layers_models = [entry];
+  tf.dispose([input, ...outs]);
+  console.log(`goldens: nsfwjs done (${entry.outputs.map((o) => o.name + '[' + o.shape + ']').join(', ')})`);
+}
+
 async function main() {
   await tf.setBackend('cpu');
   fs.mkdirSync(outDir, {recursive: true});
@@ -113,6 +166,7 @@ async function main() {
     tf.dispose([input, ...list]);
     console.log(`goldens: ${m.name} done (${entry.outputs.map((o) => o.name + '[' + o.shape + ']').join(', ')})`);
   }
+  await nsfwjsGoldens(manifest, seed++);
   fs.writeFileSync(path.join(outDir, 'manifest.json'), JSON.stringify(manifest, null, 1));
 }
 
