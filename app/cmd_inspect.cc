@@ -58,18 +58,19 @@ int RunInspectImpl(const InspectOptions& options, RunContext& ctx) {
     std::cout << "| " << m << " | " << (params > 0 ? Millions(static_cast<double>(params)) : std::string("-")) << " | "
               << in << " | " << out << " |\n";
   };
-  row("E_c: SegFormer MiT + decode head (to 1x1 fuse)", CountParameters(*model->canonical_encoder),
+  const std::string backbone = c.encoder == "mobilenet_v2" ? "MobileNetV2 (nsfwjs)" : "SegFormer MiT";
+  row("E_c: " + backbone + " + decode head (to 1x1 fuse)", CountParameters(*model->canonical_encoder),
       "I_s " + Shape({1, 3, s, s}), "F_c " + Shape({1, d, g, g}));
   row("E_c: Embed2Plane", CountParameters(*model->canonical_head), Shape({1, d, g, g}),
       "T_c " + Shape({1, 3, ch, p, p}));
   row("appearance: depth render of T_c at C_s", 0, "T_c",
       "D_s " + Shape({1, 1, g, g}) + ", I_c " + Shape({1, 3, g, g}));
-  row("E_p: SegFormer MiT (6-channel input) + decode head", CountParameters(*model->appearance_encoder),
+  row("E_p: " + backbone + " (6-channel input) + decode head", CountParameters(*model->appearance_encoder),
       Shape({1, 6, s, s}), "F " + Shape({1, d, g, g}));
   row("appearance: lifting + rasterization (k-d tree)", 0, "P " + Shape({1, g * g, 3}) + ", F", Shape({1, 3, d, g, g}));
   row("appearance: 3 upsamplers (one per plane)", upsampler_params, Shape({1, d, g, g}) + " x3",
       "T_p " + Shape({1, 3, ch, p, p}));
-  row("E_e: SegFormer MiT + decode head", CountParameters(*model->expression_encoder), "I_exp " + Shape({1, 3, s, s}),
+  row("E_e: " + backbone + " + decode head", CountParameters(*model->expression_encoder), "I_exp " + Shape({1, 3, s, s}),
       "F_e " + Shape({1, d, g, g}));
   row("E_e: Embed2Plane", CountParameters(*model->expression_head), Shape({1, d, g, g}),
       "T_e " + Shape({1, 3, ch, p, p}));

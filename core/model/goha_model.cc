@@ -3,7 +3,9 @@
 #include <set>
 #include <sstream>
 
+#include "core/model/mobilenet_v2.h"
 #include "core/model/rasterize.h"
+#include "core/model/segformer.h"
 #include "core/render/rays.h"
 #include "core/util/error.h"
 #include "core/util/version.h"
@@ -75,25 +77,45 @@ double PlaneUpsamplerImpl::Flops(int64_t h, int64_t w) const {
          ConvFlops(width_, out_, 3, 2 * h, 2 * w);
 }
 
-GohaModelImpl::GohaModelImpl(const ModelConfig& config) : config_(config) {
+namespace {
+
+// The encoder of config.encoder for `in_channels` input channels; mobilenet_v2 backbones get
+// `pretrained`'s weights when it is given.
+ImageEncoder MakeEncoder(const ModelConfig& c, int64_t in_channels, const io::KerasLayersModel* pretrained) {
+  if (c.encoder == "mobilenet_v2") {
+    MobileNetV2Encoder enc(in_channels, c.decoder_dim);
+    if (pretrained != nullptr) enc->LoadKeras(*pretrained);
+    return ImageEncoder(std::shared_ptr<ImageEncoderImpl>(enc.ptr()));
+  }
+  return ImageEncoder(std::shared_ptr<ImageEncoderImpl>(SegFormerEncoder(c, in_channels).ptr()));
+}
+
+}  // namespace
+
+GohaModelImpl::GohaModelImpl(const ModelConfig& config, const GohaModelOptions& options) : config_(config) {
   config_.Validate();
   const ModelConfig& c = config_;
-  canonical_encoder = register_module("canonical_encoder", SegFormerEncoder(c, 3));
+  std::unique_ptr<io::KerasLayersModel> keras;
+  if (c.encoder == "mobilenet_v2" && options.pretrained) {
+    keras = std::make_unique<io::KerasLayersModel>(io::LoadKerasLayersModel(NsfwjsMobileNetV2Path(options.data_dir)));
+  }
+  canonical_encoder = register_module("canonical_encoder", MakeEncoder(c, 3, keras.get()));
   canonical_head =
       register_module("canonical_head", Embed2Plane(c.decoder_dim, c.head_width, c.head_mid_width, c.plane_channels));
-  appearance_encoder = register_module("appearance_encoder", SegFormerEncoder(c, 6));
+  appearance_encoder = register_module("appearance_encoder", MakeEncoder(c, 6, keras.get()));
   for (int p = 0; p < 3; ++p) {
     upsamplers.push_back(register_module("appearance_upsampler" + std::to_string(p),
                                          PlaneUpsampler(c.decoder_dim, c.upsampler_width, c.plane_channels)));
   }
-  expression_encoder = register_module("expression_encoder", SegFormerEncoder(c, 3));
+  expression_encoder = register_module("expression_encoder", MakeEncoder(c, 3, keras.get()));
   expression_head =
       register_module("expression_head", Embed2Plane(c.decoder_dim, c.head_width, c.head_mid_width, c.plane_channels));
   decoder = register_module("decoder", TriplaneDecoder(c.plane_channels, c.decoder_hidden, c.plane_channels));
   super_resolution = register_module("super_resolution", SuperResolution(c));
 }
 
-torch::Tensor GohaModelImpl::Normalise(const torch::Tensor& rgb) {
+torch::Tensor GohaModelImpl::Normalise(const torch::Tensor& rgb) const {
+  if (config_.encoder == "mobilenet_v2") return rgb;
   const auto opts = rgb.options();
   const torch::Tensor mean = torch::tensor({0.485, 0.456, 0.406}, opts).view({1, 3, 1, 1});
   const torch::Tensor std = torch::tensor({0.229, 0.224, 0.225}, opts).view({1, 3, 1, 1});
@@ -191,7 +213,7 @@ torch::Tensor GohaModelImpl::SuperResolve(const torch::Tensor& rgb) {
 std::vector<FlopEntry> GohaModelImpl::Flops() const {
   std::vector<FlopEntry> out;
   const int64_t s = config_.image_size, g = config_.feature_size();
-  const auto add_encoder = [&](const std::string& name, const SegFormerEncoder& enc) {
+  const auto add_encoder = [&](const std::string& name, const ImageEncoder& enc) {
     for (const auto& e : enc->Flops(s)) out.push_back({name + "/" + e.module, e.flops});
   };
   const double per_sample = decoder->FlopsPerPoint() * (config_.num_coarse + config_.num_importance);
@@ -264,7 +286,9 @@ LoadedModel LoadModelCheckpoint(const std::filesystem::path& path, std::string* 
   } catch (const InvalidOptions& e) {
     throw ModelLoad(path.string() + ": checkpoint holds an invalid model config: " + e.what());
   }
-  loaded.model = GohaModel(config);
+  GohaModelOptions build;
+  build.pretrained = false;  // every weight comes from the file
+  loaded.model = GohaModel(config, build);
   LoadModelTensors(loaded.model, archive, path.string());
   loaded.model->eval();
   return loaded;

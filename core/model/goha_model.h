@@ -24,8 +24,8 @@
 #include <torch/torch.h>
 
 #include "core/model/checkpoint.h"
+#include "core/model/image_encoder.h"
 #include "core/model/model_config.h"
-#include "core/model/segformer.h"
 #include "core/model/super_resolution.h"
 #include "core/model/triplane_decoder.h"
 #include "core/render/renderer.h"
@@ -82,9 +82,21 @@ struct AppearanceOutput {
   torch::Tensor points;         // [B,G*G,3] lifted points (all rays)
 };
 
+// How GohaModel builds its encoders.
+struct GohaModelOptions {
+  // encoder mobilenet_v2: load nsfwjs's MobileNetV2 weights into the three backbones at
+  // construction (their decode heads and every other module stay randomly initialised). A
+  // missing, truncated or foreign model file throws ModelLoad naming it and scripts/setup.
+  // Off = random backbones, no data folder needed: for a model whose tensors are loaded from a
+  // checkpoint right after (LoadModelCheckpoint does this). No effect for mit_b0.
+  bool pretrained = true;
+  // Data folder holding models/nsfwjs ("" = the default resolution, AVATAR_DATA_DIR).
+  std::string data_dir;
+};
+
 class GohaModelImpl : public torch::nn::Module {
  public:
-  explicit GohaModelImpl(const ModelConfig& config);
+  explicit GohaModelImpl(const ModelConfig& config, const GohaModelOptions& options = {});
 
   const ModelConfig& config() const { return config_; }
   ModelCounters& counters() const { return counters_; }
@@ -108,7 +120,8 @@ class GohaModelImpl : public torch::nn::Module {
   torch::Tensor SuperResolve(const torch::Tensor& rgb);
 
   // Named parts for inspection and gradient checks.
-  SegFormerEncoder canonical_encoder{nullptr}, appearance_encoder{nullptr}, expression_encoder{nullptr};
+  // SegFormerEncoder (mit_b0) or MobileNetV2Encoder (mobilenet_v2), by config.encoder.
+  ImageEncoder canonical_encoder{nullptr}, appearance_encoder{nullptr}, expression_encoder{nullptr};
   Embed2Plane canonical_head{nullptr}, expression_head{nullptr};
   std::vector<PlaneUpsampler> upsamplers;
   TriplaneDecoder decoder{nullptr};
@@ -119,8 +132,9 @@ class GohaModelImpl : public torch::nn::Module {
   std::vector<FlopEntry> Flops() const;
 
  private:
-  // [-1,1] RGB -> ImageNet-normalised.
-  static torch::Tensor Normalise(const torch::Tensor& rgb);
+  // [-1,1] RGB -> the encoder's input: ImageNet mean/std for mit_b0; unchanged for
+  // mobilenet_v2 (Keras MobileNetV2 takes [-1,1]).
+  torch::Tensor Normalise(const torch::Tensor& rgb) const;
   ModelConfig config_;
   mutable ModelCounters counters_;
 };

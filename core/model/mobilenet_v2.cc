@@ -322,6 +322,33 @@ torch::Tensor MobileNetV2EncoderImpl::forward(const torch::Tensor& x) {
   return fuse_->forward(torch::cat(maps, 1));  // [B,D,H/4,W/4]
 }
 
+double MobileNetV2Impl::Flops(int64_t h, int64_t w) const {
+  const auto conv = [](const ConvBn& c, int64_t* ch, int64_t* cw) {
+    const auto& o = c.conv->options;
+    *ch /= c.stride;
+    *cw /= c.stride;
+    return ConvFlops(o.in_channels(), o.out_channels(), o.kernel_size()->at(0), *ch, *cw, o.groups());
+  };
+  double flops = conv(stem_, &h, &w);
+  for (const Block& b : blocks_) {
+    if (b.expand_conv.conv) flops += conv(b.expand_conv, &h, &w);
+    flops += conv(b.depthwise, &h, &w);
+    flops += conv(b.project, &h, &w);
+  }
+  return flops;
+}
+
+std::vector<FlopEntry> MobileNetV2EncoderImpl::Flops(int64_t size) const {
+  double head = 0;
+  const int64_t g = size / 4;
+  for (size_t s = 0; s < StageTaps().size(); ++s) {
+    const int64_t side = size / backbone_->TapStride(StageTaps()[s]);
+    head += ConvFlops(backbone_->TapChannels(StageTaps()[s]), decoder_dim_, 1, side, side);
+  }
+  head += ConvFlops(4 * decoder_dim_, decoder_dim_, 1, g, g);
+  return {{"backbone", backbone_->Flops(size, size)}, {"head", head}};
+}
+
 std::filesystem::path NsfwjsMobileNetV2Path(const std::string& data_dir) {
   return DataPaths::Resolve(data_dir).Path("models/nsfwjs/model.min.js");
 }

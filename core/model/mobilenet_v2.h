@@ -19,6 +19,7 @@
 #include <torch/torch.h>
 
 #include "core/io/keras_layers.h"
+#include "core/model/image_encoder.h"
 
 namespace avatar {
 
@@ -59,6 +60,10 @@ class MobileNetV2Impl : public torch::nn::Module {
   // Output channels and stride (relative to the input) of a tap.
   int64_t TapChannels(const std::string& tap) const;
   int64_t TapStride(const std::string& tap) const;
+
+  // Analytic FLOPs of forward() (every built block) for an h x w input, batch 1 (convolutions
+  // only; BN, ReLU6 and the residual adds are not counted).
+  double Flops(int64_t h, int64_t w) const;
 
   // Sets requires_grad(false) on every parameter (the network stays differentiable w.r.t. its input).
   void Freeze();
@@ -105,13 +110,15 @@ TORCH_MODULE(MobileNetV2);
 // Conv1..block_10 ImageNet; block_11..block_16 are nsfwjs's fine-tuned continuation of the
 // ImageNet weights (better than random, not ImageNet features). All parameters stay trainable;
 // BatchNormalization keeps its pretrained statistics.
-class MobileNetV2EncoderImpl : public torch::nn::Module {
+class MobileNetV2EncoderImpl : public ImageEncoderImpl {
  public:
   MobileNetV2EncoderImpl(int64_t in_channels, int64_t decoder_dim);
   // Loads the backbone from nsfwjs's layers model (the head stays randomly initialised).
   // Throws ModelLoad.
   void LoadKeras(const io::KerasLayersModel& model);
-  torch::Tensor forward(const torch::Tensor& x);
+  torch::Tensor forward(const torch::Tensor& x) override;
+  // "backbone" and "head" FLOPs for a size x size input, batch 1.
+  std::vector<FlopEntry> Flops(int64_t size) const override;
   // The four backbone outputs [B,C_s,H/2^(s+2),W/2^(s+2)].
   std::vector<torch::Tensor> Stages(const torch::Tensor& x);
   static const std::vector<std::string>& StageTaps();

@@ -9,6 +9,8 @@
 //           samples and a narrower SR to 256: the render is the part an orbiting preview repeats,
 //           and `bench render` measured ~0.1 s for this size on 2 cores (docs/PERFORMANCE.md).
 //   tiny  : a few thousand parameters per module, for tests only.
+// All three presets use the mit_b0 encoder; `encoder` = mobilenet_v2 swaps in the pretrained
+// MobileNetV2 (see the field).
 
 #include <string>
 #include <vector>
@@ -20,6 +22,12 @@ struct ModelConfig {
   std::string name = "paper";
   // Side of the square encoder input (source image, canonical render, I_exp).
   int image_size = 512;
+  // Backbone of the three encoders E_c, E_p, E_e: "mit_b0" (SegFormer MiT, sized by the
+  // encoder_* fields below, random initialisation) or "mobilenet_v2" (Keras MobileNetV2 with
+  // nsfwjs's pretrained weights and an all-MLP decode head to decoder_dim; the encoder_* fields
+  // are then unused). A config stored without the field (files made before it existed) reads
+  // as mit_b0.
+  std::string encoder = "mit_b0";
   // Channels of the four SegFormer (MiT) stages.
   std::vector<int> encoder_widths = {32, 64, 160, 256};
   // Transformer blocks per stage.
@@ -63,6 +71,7 @@ struct ModelConfig {
   void Visit(V&& v) {
     v("name", name, "Preset name");
     v("image_size", image_size, "Encoder input side");
+    v("encoder", encoder, "Encoder backbone: mit_b0 or mobilenet_v2");
     v("encoder_widths", encoder_widths, "MiT stage widths");
     v("encoder_depths", encoder_depths, "MiT blocks per stage");
     v("encoder_heads", encoder_heads, "MiT heads per stage");

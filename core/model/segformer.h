@@ -22,15 +22,11 @@
 
 #include <torch/torch.h>
 
+#include "core/model/image_encoder.h"
 #include "core/model/model_config.h"
 
 namespace avatar {
 
-// One named cost entry for `inspect`.
-struct FlopEntry {
-  std::string module;  // e.g. "E_c/stage2"
-  double flops = 0.0;  // analytic FLOPs of one forward, batch 1
-};
 
 class OverlapPatchEmbedImpl : public torch::nn::Module {
  public:
@@ -89,14 +85,14 @@ TORCH_MODULE(MitBlock);
 
 // MiT encoder + decode head up to the fuse conv. Input [B,in_channels,S,S] (S = config.image_size,
 // already normalised), output [B,decoder_dim,S/4,S/4].
-class SegFormerEncoderImpl : public torch::nn::Module {
+class SegFormerEncoderImpl : public ImageEncoderImpl {
  public:
   SegFormerEncoderImpl(const ModelConfig& config, int64_t in_channels);
-  torch::Tensor forward(const torch::Tensor& x);
+  torch::Tensor forward(const torch::Tensor& x) override;
   // The four stage outputs [B,C_s,S/2^(s+2),S/2^(s+2)] (for tests and inspection).
   std::vector<torch::Tensor> Stages(const torch::Tensor& x);
   // Per-stage FLOPs ("stage0".."stage3", "head") for an S x S input, batch 1.
-  std::vector<FlopEntry> Flops(int64_t size) const;
+  std::vector<FlopEntry> Flops(int64_t size) const override;
 
  private:
   std::vector<OverlapPatchEmbed> embeds_;
@@ -109,7 +105,5 @@ class SegFormerEncoderImpl : public torch::nn::Module {
 };
 TORCH_MODULE(SegFormerEncoder);
 
-// Analytic conv cost (see the header comment).
-double ConvFlops(int64_t in, int64_t out, int64_t kernel, int64_t h_out, int64_t w_out, int64_t groups = 1);
 
 }  // namespace avatar

@@ -15,7 +15,9 @@ for want in ./usr/bin/avatar-studio ./usr/share/applications/avatar-studio.deskt
             ./usr/share/metainfo/io.github.avatarstudio.AvatarStudio.metainfo.xml; do
   if grep -q " $want\$" "$work/files.txt"; then echo "contains $want"; else echo "MISSING $want"; status=1; fi
 done
-dpkg-deb -f "$deb" Package Version Depends
+dpkg-deb -f "$deb" Package Version Depends Recommends
+if dpkg-deb -f "$deb" Depends | grep -q "libopenblas0-openmp"; then echo "Depends names OpenBLAS"; else
+  echo "MISSING OpenBLAS in Depends"; status=1; fi
 # The packaged binary runs (it was installed into the package tree, not just copied).
 mkdir -p "$work/root" && dpkg-deb -x "$deb" "$work/root"
 "$work/root/usr/bin/avatar-studio" --version

@@ -1,0 +1,194 @@
+#include "core/train/dataset.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <numeric>
+#include <random>
+#include <set>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <torch/serialize.h>
+
+#include "core/util/error.h"
+
+namespace avatar::train {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::vector<char> ReadAll(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Io("cannot read " + path.string() + ": is the dataset built (avatar-studio dataset build)?");
+  return std::vector<char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// uint8 [...] -> float in [-1,1].
+torch::Tensor Signed(const torch::Tensor& u8) { return u8.to(torch::kFloat32).div(127.5).sub(1.0); }
+torch::Tensor Unit(const torch::Tensor& u8) { return u8.to(torch::kFloat32).div(255.0); }
+
+}  // namespace
+
+TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split) {
+  if (split != "train" && split != "val") throw InvalidOptions("split must be train or val, got '" + split + "'");
+  const fs::path json_path = fs::path(dir) / "dataset.json";
+  const std::vector<char> json_bytes = ReadAll(json_path);
+  nlohmann::json ds;
+  std::string shard_rel;
+  TrainDataset out;
+  out.split_ = split;
+  try {
+    ds = nlohmann::json::parse(json_bytes.begin(), json_bytes.end());
+    out.image_size_ = ds.at("size").get<int64_t>();
+    shard_rel = ds.at("shards").at(split).get<std::string>();
+    if (!ds.at("labels").is_array()) throw InvalidInput("labels is not a list");
+  } catch (const nlohmann::json::exception& e) {
+    throw InvalidInput(json_path.string() + " is corrupted (" + e.what() + "): rebuild the dataset");
+  }
+  if (out.image_size_ < 8 || out.image_size_ > 4096)
+    throw InvalidInput(json_path.string() + " has an invalid size " + std::to_string(out.image_size_));
+  const fs::path shard = fs::path(dir) / shard_rel;
+  const std::vector<char> bytes = ReadAll(shard);
+  auto bad = [&](const std::string& why) {
+    return InvalidInput(shard.string() + " is corrupted (" + why + "): rebuild the dataset");
+  };
+  c10::IValue loaded;
+  try {
+    loaded = torch::pickle_load(bytes);
+  } catch (const c10::Error& e) {
+    throw bad(std::string("unreadable: ") + e.what_without_backtrace());
+  } catch (const std::exception& e) {
+    throw bad(std::string("unreadable: ") + e.what());
+  }
+  if (!loaded.isGenericDict()) throw bad("not a dict of tensors");
+  const c10::impl::GenericDict dict = loaded.toGenericDict();
+  auto get = [&](const char* key) {
+    auto it = dict.find(c10::IValue(std::string(key)));
+    if (it == dict.end() || !it->value().isTensor()) throw bad(std::string("no tensor '") + key + "'");
+    return it->value().toTensor();
+  };
+  out.image_ = get("image");
+  out.matte_ = get("matte");
+  out.eye_mouth_ = get("eye_mouth");
+  out.expression_image_ = get("expression_image");
+  out.neutral_image_ = get("neutral_image");
+  out.neutral_mask_ = get("neutral_mask");
+  out.label_ = get("label");
+  out.expression_ = get("expression");
+  out.identity_ = get("identity");
+  out.pairs_ = get("pairs");
+  out.pair_kind_ = get("pair_kind");
+  const int64_t n = out.image_.dim() == 4 ? out.image_.size(0) : -1;
+  const int64_t s = out.image_size_;
+  auto check_image = [&](const torch::Tensor& t, int64_t c, const char* name) {
+    if (t.scalar_type() != torch::kUInt8 || t.dim() != 4 || t.size(0) != n || t.size(1) != c || t.size(2) != s ||
+        t.size(3) != s) {
+      std::ostringstream m;
+      m << name << " has shape " << t.sizes() << ", expected uint8 [" << n << "," << c << "," << s << "," << s << "]";
+      throw bad(m.str());
+    }
+  };
+  if (n < 0) throw bad("image is not [N,3,S,S]");
+  check_image(out.image_, 3, "image");
+  check_image(out.matte_, 1, "matte");
+  check_image(out.eye_mouth_, 1, "eye_mouth");
+  check_image(out.expression_image_, 3, "expression_image");
+  check_image(out.neutral_image_, 3, "neutral_image");
+  check_image(out.neutral_mask_, 1, "neutral_mask");
+  if (out.label_.dim() != 2 || out.label_.size(0) != n || out.label_.size(1) != 25) throw bad("label is not [N,25]");
+  if (out.expression_.dim() != 2 || out.expression_.size(0) != n) throw bad("expression is not [N,K]");
+  if (out.identity_.dim() != 1 || out.identity_.size(0) != n) throw bad("identity is not [N]");
+  if (out.pairs_.dim() != 2 || out.pairs_.size(1) != 2 || out.pair_kind_.dim() != 1 ||
+      out.pair_kind_.size(0) != out.pairs_.size(0))
+    throw bad("pairs is not [P,2] with pair_kind [P]");
+  if (out.pairs_.numel() > 0 && (out.pairs_.min().item<int64_t>() < 0 || out.pairs_.max().item<int64_t>() >= n))
+    throw bad("pair index out of range");
+  if (!torch::isfinite(out.label_).all().item<bool>()) throw bad("non-finite camera label");
+  out.label_ = out.label_.to(torch::kFloat32);
+  out.expression_ = out.expression_.to(torch::kFloat32);
+  return out;
+}
+
+int64_t TrainDataset::CountKind(PairKind kind) const {
+  return pair_kind_.eq(static_cast<int64_t>(kind)).sum().item<int64_t>();
+}
+
+std::vector<int64_t> TrainDataset::Identities() const {
+  std::set<int64_t> ids;
+  const auto a = identity_.accessor<int64_t, 1>();
+  for (int64_t i = 0; i < a.size(0); ++i) ids.insert(a[i]);
+  return {ids.begin(), ids.end()};
+}
+
+TrainSample TrainDataset::Get(int64_t index) const {
+  if (index < 0 || index >= size())
+    throw InvalidInput("pair " + std::to_string(index) + " out of range [0," + std::to_string(size()) + ")");
+  const int64_t s = pairs_[index][0].item<int64_t>();
+  const int64_t t = pairs_[index][1].item<int64_t>();
+  auto matted = [&](int64_t i) {
+    const torch::Tensor m = Unit(matte_[i]);
+    return Signed(image_[i]).mul(m).add(m.sub(1.0));  // black (-1) outside the matte
+  };
+  TrainSample out;
+  out.source = matted(s);
+  out.source_matte = Unit(matte_[s]);
+  out.source_eye_mouth = Unit(eye_mouth_[s]);
+  out.source_label = label_[s].clone();
+  out.target = matted(t);
+  out.target_matte = Unit(matte_[t]);
+  out.target_label = label_[t].clone();
+  // I_exp: the source's identity and texture with the target's expression; stored per target
+  // frame (identical identity for photo and clip pairs).
+  out.expression_image = Signed(expression_image_[t]);
+  out.neutral_image = Signed(neutral_image_[s]);
+  out.neutral_mask = Unit(neutral_mask_[s]);
+  out.target_expression = expression_[t].clone();
+  out.kind = static_cast<PairKind>(pair_kind_[index].item<int64_t>());
+  out.identity = identity_[s].item<int64_t>();
+  return out;
+}
+
+void LoaderOptions::Validate() const {
+  if (batch_size < 1 || batch_size > 4096) throw InvalidOptions("batch size must be in 1..4096");
+}
+
+DataLoader::DataLoader(const TrainDataset& dataset, const LoaderOptions& options)
+    : dataset_(dataset), options_(options) {
+  options_.Validate();
+  if (dataset.size() == 0) throw InvalidInput("the " + dataset.split() + " split of the dataset has no pairs");
+  StartEpoch(0);
+}
+
+void DataLoader::StartEpoch(int64_t epoch) {
+  order_.resize(static_cast<size_t>(dataset_.size()));
+  std::iota(order_.begin(), order_.end(), 0);
+  if (options_.shuffle) {
+    std::mt19937_64 rng(options_.seed * 1000003ULL + static_cast<uint64_t>(epoch));
+    std::shuffle(order_.begin(), order_.end(), rng);
+  }
+  position_ = 0;
+}
+
+int64_t DataLoader::BatchesPerEpoch() const {
+  const int64_t n = dataset_.size();
+  return options_.drop_last ? n / options_.batch_size : (n + options_.batch_size - 1) / options_.batch_size;
+}
+
+bool DataLoader::Next(TrainBatch* batch) {
+  const size_t remaining = order_.size() - position_;
+  if (remaining == 0) return false;
+  const size_t take = std::min<size_t>(remaining, static_cast<size_t>(options_.batch_size));
+  if (options_.drop_last && take < static_cast<size_t>(options_.batch_size)) {
+    position_ = order_.size();
+    return false;
+  }
+  std::vector<TrainSample> samples;
+  samples.reserve(take);
+  for (size_t i = 0; i < take; ++i) samples.push_back(dataset_.Get(order_[position_ + i]));
+  position_ += take;
+  *batch = Collate(samples);
+  return true;
+}
+
+}  // namespace avatar::train

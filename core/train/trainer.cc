@@ -1,0 +1,415 @@
+#include "core/train/trainer.h"
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+#include "core/model/checkpoint.h"
+#include "core/render/camera.h"
+#include "core/util/error.h"
+#include "core/util/options.h"
+#include "core/util/timer.h"
+
+namespace avatar::train {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kStateKind = "goha-train-state";
+
+bool Finite(const torch::Tensor& t) {
+  if (!t.defined() || !t.is_floating_point()) return true;
+  return torch::isfinite(t).all().item<bool>();
+}
+
+std::string FormatDuration(double seconds) {
+  if (!std::isfinite(seconds) || seconds < 0) return "?";
+  const int64_t s = static_cast<int64_t>(seconds + 0.5);
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%lld:%02lld:%02lld", static_cast<long long>(s / 3600),
+                static_cast<long long>((s / 60) % 60), static_cast<long long>(s % 60));
+  return buf;
+}
+
+at::Generator DefaultGenerator(const torch::Device& device) {
+  return at::globalContext().defaultGenerator(device.is_cpu() ? torch::Device(torch::kCPU) : device);
+}
+
+}  // namespace
+
+void TrainerOptions::Validate() const {
+  AVATAR_CHECK_OPTION(lr > 0 && std::isfinite(lr)) << "lr must be > 0";
+  AVATAR_CHECK_OPTION(beta1 >= 0 && beta1 < 1 && beta2 >= 0 && beta2 < 1) << "Adam betas must be in [0,1)";
+  AVATAR_CHECK_OPTION(eps > 0) << "eps must be > 0";
+  AVATAR_CHECK_OPTION(perceptual_weight >= 0 && neutral_weight >= 0 && tv_weight >= 0) << "loss weights must be >= 0";
+  AVATAR_CHECK_OPTION(tv_points >= 1 && tv_sigma >= 0) << "tv_points must be >= 1 and tv_sigma >= 0";
+  AVATAR_CHECK_OPTION(expression_start >= 0 && appearance_start >= expression_start)
+      << "curriculum: 0 <= expression_start <= appearance_start";
+  AVATAR_CHECK_OPTION(max_bad_steps >= 1) << "max_bad_steps must be >= 1";
+  AVATAR_CHECK_OPTION(seed >= 0) << "seed must be >= 0";
+  try {
+    (void)torch::Device(device);
+  } catch (const std::exception&) {
+    throw InvalidOptions("unknown device '" + device + "' (cpu, cuda, cuda:N)");
+  }
+}
+
+void TrainerOptions::ScheduleFor(int64_t total_steps) {
+  // The paper: 750k stage-I steps, expression planes from 120k, appearance planes from 240k.
+  expression_start = total_steps * 120 / 750;
+  appearance_start = total_steps * 240 / 750;
+}
+
+StageOneTrainer::StageOneTrainer(GohaModel model, const TrainerOptions& options, PerceptualFn perceptual)
+    : options_(options), device_(torch::kCPU), model_(std::move(model)), perceptual_(std::move(perceptual)) {
+  options_.Validate();
+  AVATAR_CHECK_INPUT(!model_.is_empty()) << "StageOneTrainer: no model";
+  device_ = torch::Device(options_.device);
+  model_->to(device_);
+  for (const auto& item : model_->named_parameters(true)) {
+    names_.push_back(item.key());
+    params_.push_back(item.value());
+  }
+  exp_avg_.resize(params_.size());
+  exp_avg_sq_.resize(params_.size());
+  param_steps_.assign(params_.size(), 0);
+  torch::manual_seed(static_cast<uint64_t>(options_.seed));
+}
+
+std::string StageOneTrainer::PhaseAt(int64_t step) const {
+  if (step < options_.expression_start) return "canonical";
+  if (step < options_.appearance_start) return "expression";
+  return "appearance";
+}
+
+StepResult StageOneTrainer::Step(const TrainBatch& batch) {
+  Timer timer;
+  StepResult r;
+  r.step = step_;
+  r.phase = PhaseAt(step_);
+  AVATAR_CHECK_INPUT(batch.size() >= 1) << "training step on an empty batch";
+  model_->train();
+  const TrainBatch b = batch.To(device_);
+  const int64_t res = model_->config().render_size;
+  const bool with_expression = step_ >= options_.expression_start;
+  const bool with_appearance = step_ >= options_.appearance_start;
+  // Which terms this step has (the release's rotation, when on, after the canonical phase).
+  bool recon = true, full = with_appearance, neutral = true;
+  if (options_.rotation && with_expression) {
+    const int64_t k = step_ % 6;
+    recon = k < 4;
+    full = with_appearance && k < 2;
+    neutral = k >= 4;
+  }
+
+  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+
+  const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
+  const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
+  const torch::Tensor target = ResizeTo(Matte(b.target, b.target_matte), res);
+
+  std::map<std::string, torch::Tensor> terms;
+  const torch::Tensor tc = model_->CanonicalPlanes(b.source);
+  torch::Tensor largest = tc;
+  if (recon) {
+    terms["canonical"] = ImageLoss(model_->Render(tc, target_cam, 0, false).rgb, target, perceptual_,
+                                   options_.perceptual_weight).mean();
+    if (with_expression) {
+      const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
+      largest = tce;
+      terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, false).rgb, target, perceptual_,
+                                      options_.perceptual_weight).mean();
+      if (full) {
+        const torch::Tensor tp =
+            model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+        const torch::Tensor tcep = tce + tp;
+        largest = tcep;
+        terms["appearance"] = ImageLoss(model_->Render(tcep, target_cam, 0, false).rgb, target, perceptual_,
+                                        options_.perceptual_weight).mean();
+      }
+    }
+  }
+  if (neutral && options_.neutral_weight > 0) {
+    const torch::Tensor ic_source = model_->Render(tc, source_cam, 0, false).rgb;
+    terms["neutral"] = options_.neutral_weight *
+                       NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual_, options_.perceptual_weight)
+                           .mean();
+  }
+  if (options_.tv_weight > 0) {
+    TvOptions tv;
+    tv.num_points = options_.tv_points;
+    tv.sigma = options_.tv_sigma;
+    tv.box_warp = model_->RenderOptionsFor().box_warp;
+    auto decoder = [this](const torch::Tensor& f) { return model_->decoder->forward(f); };
+    const render::Field field = render::MakeTriplaneField(largest, decoder, tv.box_warp);
+    const DensityFn density = [&field](const torch::Tensor& points) { return field(points).raw_density; };
+    terms["tv"] = options_.tv_weight * DensityTvLoss(density, b.size(), tv, largest.options());
+  }
+
+  torch::Tensor total;
+  for (const auto& [name, t] : terms) {
+    total = total.defined() ? total + t : t;
+    r.terms[name] = t.item<double>();
+  }
+  r.loss = total.item<double>();
+  bool ok = std::isfinite(r.loss);
+  if (!ok) r.skip_reason = "non-finite loss";
+  if (ok) {
+    total.backward();
+    torch::NoGradGuard no_grad;
+    torch::Tensor sq = torch::zeros({}, torch::TensorOptions().dtype(torch::kFloat64).device(device_));
+    for (const auto& p : params_)
+      if (p.grad().defined()) sq += p.grad().to(torch::kFloat64).pow(2).sum();
+    r.grad_norm = std::sqrt(sq.item<double>());
+    ok = std::isfinite(r.grad_norm);
+    if (!ok) r.skip_reason = "non-finite gradient";
+  }
+  if (ok) {
+    torch::NoGradGuard no_grad;
+    const double scale =
+        (options_.grad_clip > 0 && r.grad_norm > options_.grad_clip) ? options_.grad_clip / (r.grad_norm + 1e-6) : 1.0;
+    const double b1 = options_.beta1, b2 = options_.beta2;
+    for (size_t i = 0; i < params_.size(); ++i) {
+      torch::Tensor g = params_[i].grad();
+      if (!g.defined()) continue;
+      if (scale != 1.0) g = g * scale;
+      if (!exp_avg_[i].defined()) {
+        exp_avg_[i] = torch::zeros_like(params_[i]);
+        exp_avg_sq_[i] = torch::zeros_like(params_[i]);
+      }
+      const int64_t t = ++param_steps_[i];
+      exp_avg_[i].mul_(b1).add_(g, 1.0 - b1);
+      exp_avg_sq_[i].mul_(b2).addcmul_(g, g, 1.0 - b2);
+      const double bc1 = 1.0 - std::pow(b1, static_cast<double>(t));
+      const double bc2 = 1.0 - std::pow(b2, static_cast<double>(t));
+      const torch::Tensor denom = (exp_avg_sq_[i].sqrt() / std::sqrt(bc2)).add_(options_.eps);
+      params_[i].addcdiv_(exp_avg_[i], denom, -options_.lr / bc1);
+    }
+    bad_in_a_row_ = 0;
+  } else {
+    r.skipped = true;
+    ++skipped_;
+    ++bad_in_a_row_;
+  }
+  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+  ++step_;
+  r.seconds = timer.Seconds();
+  return r;
+}
+
+StageOneTrainer::Renders StageOneTrainer::Evaluate(const TrainBatch& batch) {
+  torch::NoGradGuard no_grad;
+  model_->eval();
+  const TrainBatch b = batch.To(device_);
+  const int64_t res = model_->config().render_size;
+  Renders out;
+  out.target = ResizeTo(Matte(b.target, b.target_matte), res);
+  const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
+  const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
+  const torch::Tensor tc = model_->CanonicalPlanes(b.source);
+  const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
+  const torch::Tensor tp = model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+  out.canonical = model_->Render(tc, target_cam, 0, true).rgb;
+  out.expression = model_->Render(tce, target_cam, 0, true).rgb;
+  out.full = model_->Render(tce + tp, target_cam, 0, true).rgb;
+  model_->train();
+  return out;
+}
+
+bool StageOneTrainer::AllFinite() const {
+  for (const auto& p : params_)
+    if (!Finite(p)) return false;
+  for (const auto& item : model_->named_buffers(true))
+    if (!Finite(item.value())) return false;
+  for (size_t i = 0; i < params_.size(); ++i)
+    if (!Finite(exp_avg_[i]) || !Finite(exp_avg_sq_[i])) return false;
+  return true;
+}
+
+void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source) const {
+  if (!AllFinite())
+    throw InvalidInput(path.string() + ": not written: the training state has a non-finite tensor");
+  TensorArchive archive;
+  archive.kind = kStateKind;
+  nlohmann::json steps = nlohmann::json::array();
+  for (int64_t s : param_steps_) steps.push_back(s);
+  archive.meta = {{"config", nlohmann::json::parse(ModelConfigToJson(model_->config()))},
+                  {"options", options::ToJson(options_)},
+                  {"step", step_},
+                  {"skipped", skipped_},
+                  {"bad_in_a_row", bad_in_a_row_},
+                  {"param_steps", steps},
+                  {"data", source != nullptr ? source->State() : nlohmann::json()}};
+  for (const auto& item : model_->named_parameters(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
+  for (const auto& item : model_->named_buffers(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
+  for (size_t i = 0; i < params_.size(); ++i) {
+    if (!exp_avg_[i].defined()) continue;
+    archive.tensors.emplace_back("m/" + names_[i], exp_avg_[i]);
+    archive.tensors.emplace_back("v/" + names_[i], exp_avg_sq_[i]);
+  }
+  {
+    at::Generator cpu = DefaultGenerator(torch::kCPU);
+    std::lock_guard<std::mutex> lock(cpu.mutex());
+    archive.tensors.emplace_back("rng/cpu", cpu.get_state());
+  }
+  if (!device_.is_cpu()) {
+    at::Generator dev = DefaultGenerator(device_);
+    std::lock_guard<std::mutex> lock(dev.mutex());
+    archive.tensors.emplace_back("rng/device", dev.get_state());
+  }
+  WriteTensorArchive(path, archive);
+}
+
+void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
+  const TensorArchive archive = ReadTensorArchive(path, kStateKind);
+  const std::string file = path.string();
+  try {
+    const ModelConfig stored = ModelConfigFromJson(archive.meta.at("config").dump());
+    if (stored != model_->config())
+      throw ModelLoad(file + ": the training state is of model config '" + stored.name +
+                      "', not of the model being trained ('" + model_->config().name + "')");
+    torch::NoGradGuard no_grad;
+    auto copy = [&](const std::string& name, torch::Tensor& dst) {
+      const torch::Tensor& src = archive.Get(name, file);
+      if (src.sizes() != dst.sizes() || src.scalar_type() != dst.scalar_type())
+        throw ModelLoad(file + ": tensor '" + name + "' does not match the model");
+      dst.copy_(src);
+    };
+    for (auto& item : model_->named_parameters(true)) copy("w/" + item.key(), item.value());
+    for (auto& item : model_->named_buffers(true)) copy("w/" + item.key(), item.value());
+    const auto& steps = archive.meta.at("param_steps");
+    if (steps.size() != params_.size()) throw ModelLoad(file + ": optimiser state of another model");
+    for (size_t i = 0; i < params_.size(); ++i) {
+      param_steps_[i] = steps[i].get<int64_t>();
+      exp_avg_[i] = torch::Tensor();
+      exp_avg_sq_[i] = torch::Tensor();
+      if (param_steps_[i] == 0) continue;
+      exp_avg_[i] = archive.Get("m/" + names_[i], file).to(device_).clone();
+      exp_avg_sq_[i] = archive.Get("v/" + names_[i], file).to(device_).clone();
+    }
+    step_ = archive.meta.at("step").get<int64_t>();
+    skipped_ = archive.meta.at("skipped").get<int64_t>();
+    bad_in_a_row_ = archive.meta.at("bad_in_a_row").get<int64_t>();
+    {
+      at::Generator cpu = DefaultGenerator(torch::kCPU);
+      std::lock_guard<std::mutex> lock(cpu.mutex());
+      cpu.set_state(archive.Get("rng/cpu", file));
+    }
+    if (!device_.is_cpu()) {
+      at::Generator dev = DefaultGenerator(device_);
+      std::lock_guard<std::mutex> lock(dev.mutex());
+      dev.set_state(archive.Get("rng/device", file));
+    }
+    if (source != nullptr) source->Restore(archive.meta.at("data"));
+  } catch (const nlohmann::json::exception& e) {
+    throw ModelLoad(file + ": malformed training state (" + e.what() + ")");
+  }
+}
+
+void StageOneTrainer::ExportWeights(const fs::path& path, const std::string& data_provenance) const {
+  if (!AllFinite()) throw InvalidInput(path.string() + ": not written: the weights have a non-finite value");
+  CheckpointInfo info;
+  info.step = step_;
+  info.data_provenance = data_provenance;
+  GohaModel model = model_;
+  SaveModelCheckpoint(path, model, info);
+}
+
+void RunOptions::Validate() const {
+  AVATAR_CHECK_OPTION(!out_dir.empty()) << "--out must name the run folder";
+  AVATAR_CHECK_OPTION(steps >= 0) << "--steps must be >= 0";
+  AVATAR_CHECK_OPTION(hours >= 0 && std::isfinite(hours)) << "--hours must be >= 0";
+  AVATAR_CHECK_OPTION(checkpoint_minutes > 0) << "checkpoint_minutes must be > 0";
+  AVATAR_CHECK_OPTION(checkpoint_steps >= 0) << "checkpoint_steps must be >= 0";
+}
+
+fs::path StatePath(const fs::path& out_dir) { return out_dir / "state.ckpt"; }
+fs::path LogPath(const fs::path& out_dir) { return out_dir / "train.jsonl"; }
+
+RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOptions& options, RunContext& ctx) {
+  options.Validate();
+  std::error_code ec;
+  fs::create_directories(options.out_dir, ec);
+  if (ec) throw Io(options.out_dir.string() + ": cannot create the run folder: " + ec.message());
+  const fs::path state = StatePath(options.out_dir);
+  if (options.resume && fs::exists(state)) trainer.LoadState(state, &source);
+  RunResult result;
+  result.first_step = trainer.step();
+  std::ofstream log(LogPath(options.out_dir), std::ios::app);
+  if (!log) throw Io(LogPath(options.out_dir).string() + ": cannot open the training log");
+
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  auto last_save = start;
+  auto elapsed = [](Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); };
+  auto save = [&] {
+    trainer.SaveState(state, &source);
+    last_save = Clock::now();
+  };
+  double mean_step = 0.0;
+  int64_t timed = 0;
+  result.stopped_by = "steps";
+  try {
+    while (trainer.step() < options.steps) {
+      if (options.hours > 0 && elapsed(start) >= options.hours * 3600.0) {
+        result.stopped_by = "hours";
+        break;
+      }
+      ctx.ThrowIfCancelled();
+      const TrainBatch batch = source.Next();
+      const StepResult r = trainer.Step(batch);
+      ++timed;
+      mean_step += (r.seconds - mean_step) / static_cast<double>(std::min<int64_t>(timed, 20));
+      const double samples_per_s = r.seconds > 0 ? batch.size() / r.seconds : 0.0;
+      nlohmann::json line = {{"step", r.step},         {"phase", r.phase},
+                             {"loss", r.loss},         {"terms", r.terms},
+                             {"grad_norm", r.grad_norm}, {"lr", trainer.options().lr},
+                             {"step_s", r.seconds},    {"samples_per_s", samples_per_s},
+                             {"batch", batch.size()},  {"skipped", r.skipped},
+                             {"skipped_total", trainer.skipped_steps()}};
+      if (r.skipped) line["skip_reason"] = r.skip_reason;
+      // nlohmann writes non-finite doubles as null, which keeps each line valid JSON.
+      log << line.dump() << "\n";
+      log.flush();
+      const int64_t done = trainer.step() - result.first_step, total = options.steps - result.first_step;
+      double eta = mean_step * static_cast<double>(options.steps - trainer.step());
+      if (options.hours > 0) eta = std::min(eta, options.hours * 3600.0 - elapsed(start));
+      if (options.progress) {
+        std::ostringstream p;
+        p << "\rtrain: step " << trainer.step() << "/" << options.steps << "  " << r.phase << "  loss " << std::fixed
+          << std::setprecision(4) << r.loss << "  " << std::setprecision(2) << mean_step << " s/step  "
+          << std::setprecision(1) << samples_per_s << " samples/s  skipped " << trainer.skipped_steps() << "  ETA "
+          << FormatDuration(eta) << "   ";
+        std::cerr << p.str() << std::flush;
+      }
+      if (trainer.bad_in_a_row() >= trainer.options().max_bad_steps) {
+        if (options.progress) std::cerr << "\n";
+        save();
+        throw InvalidInput("training stopped: " + std::to_string(trainer.bad_in_a_row()) +
+                           " steps in a row had a non-finite loss or gradient (last: " + r.skip_reason +
+                           "); the last good state is in " + state.string());
+      }
+      if (elapsed(last_save) >= options.checkpoint_minutes * 60.0 ||
+          (options.checkpoint_steps > 0 && trainer.step() % options.checkpoint_steps == 0))
+        save();
+      ctx.Report("train", total > 0 ? static_cast<double>(done) / static_cast<double>(total) : 1.0,
+                 "step " + std::to_string(trainer.step()));
+    }
+  } catch (const Cancelled&) {
+    if (options.progress) std::cerr << "\n";
+    save();
+    throw;
+  }
+  if (options.progress) std::cerr << "\n";
+  save();
+  trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
+  result.last_step = trainer.step();
+  result.skipped = trainer.skipped_steps();
+  return result;
+}
+
+}  // namespace avatar::train
