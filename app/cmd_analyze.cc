@@ -147,8 +147,10 @@ int AnalyzeImage(const AnalyzeOptions& o, RunContext& ctx) {
                 {"pose", PoseJson(portrait.pose)},
                 {"crop", {{"size", portrait.image.cols},
                           {"crop_from_image", {{m(0, 0), m(0, 1), m(0, 2)}, {m(1, 0), m(1, 1), m(1, 2)}}}}},
+                {"embedding_model", "fr_feature.onnx"},
                 {"embedding_size", portrait.embedding.size()},
                 {"embedding_norm", std::sqrt(norm)},
+                {"embedding", portrait.embedding},
                 {"timings_ms", timings},
                 {"peak_rss_mb", PeakRssMb()}};
     std::cout << out.dump() << "\n";

@@ -28,7 +28,7 @@ namespace fs = std::filesystem;
 
 struct TrainCommandOptions {
   // Model preset or JSON file.
-  std::string config = "lite";
+  std::string config = "cpu";
   // Dataset folder (dataset.json + shards/).
   std::string data;
   // Run folder.
@@ -54,7 +54,7 @@ struct TrainCommandOptions {
 
   template <typename V>
   void Visit(V&& v) {
-    v("config", config, "Model preset (paper, lite, tiny) or a JSON file of model-config fields", 'c');
+    v("config", config, "Model preset (paper, lite, cpu, tiny) or a JSON file of model-config fields", 'c');
     v("data", data, "Dataset folder written by 'avatar-studio dataset build'", 'd');
     v("out", out, "Run folder (state.ckpt, train.jsonl, model.ckpt)", 'o');
     v("resume", resume, "Continue from RUN/state.ckpt");
@@ -90,8 +90,8 @@ struct TrainCommandOptions {
 };
 
 ModelConfig ResolveConfig(const std::string& c) {
-  if (c == "paper" || c == "lite" || c == "tiny") return ModelConfig::FromName(c);
-  if (!fs::exists(c)) throw InvalidOptions("--config '" + c + "' is neither a preset (paper, lite, tiny) nor a file");
+  if (c == "paper" || c == "lite" || c == "cpu" || c == "tiny") return ModelConfig::FromName(c);
+  if (!fs::exists(c)) throw InvalidOptions("--config '" + c + "' is neither a preset (paper, lite, cpu, tiny) nor a file");
   try {
     return ModelConfigFromJson(ReadFileBytes(c));
   } catch (const InvalidOptions& e) {

@@ -11,6 +11,7 @@
 
 #include "core/face/blazeface.h"
 #include "core/face/face_geometry.h"
+#include "core/face/identity_net.h"
 #include "core/face/image_tensor.h"
 #include "core/io/data_paths.h"
 #include "core/io/tfjs_graph.h"
@@ -23,16 +24,8 @@ namespace {
 
 constexpr int kMeshInput = 192;
 constexpr int kMatteInput = 256;
-constexpr int kEmbedInput = 112;
 // Facemesh crops are the face box (or landmark box) enlarged by this factor.
 constexpr float kMeshRoiScale = 1.5f;
-
-// ArcFace's 112x112 five-point template (eye centres, nose tip, mouth corners; image-left first).
-const std::vector<cv::Point2f>& ArcFaceTemplate() {
-  static const std::vector<cv::Point2f> t = {
-      {38.2946f, 51.6963f}, {73.5318f, 51.5014f}, {56.0252f, 71.7366f}, {41.5493f, 92.3655f}, {70.7299f, 92.2041f}};
-  return t;
-}
 
 io::TfjsGraph LoadModel(const DataPaths& paths, const std::string& name, const std::string& purpose) {
   const auto file = paths.Require("models/" + name + ".json", purpose);
@@ -80,7 +73,7 @@ struct FaceAnalyzer::Models {
   std::unique_ptr<BlazeFace> front;
   std::unique_ptr<io::TfjsGraph> mesh;
   std::unique_ptr<io::TfjsGraph> selfie;
-  std::unique_ptr<io::TfjsGraph> identity;
+  std::unique_ptr<IdentityNet> identity;
 };
 
 FaceAnalyzer::FaceAnalyzer(const FaceAnalyzerOptions& options) : models_(std::make_unique<Models>()), options_(options) {
@@ -90,7 +83,7 @@ FaceAnalyzer::FaceAnalyzer(const FaceAnalyzerOptions& options) : models_(std::ma
   models_->front = std::make_unique<BlazeFace>(LoadModel(paths, "blazeface-front", "face detection"), true);
   models_->mesh = std::make_unique<io::TfjsGraph>(LoadModel(paths, "facemesh", "face landmarks"));
   models_->selfie = std::make_unique<io::TfjsGraph>(LoadModel(paths, "selfie", "person matting"));
-  models_->identity = std::make_unique<io::TfjsGraph>(LoadModel(paths, "mobilefacenet", "identity embedding"));
+  models_->identity = std::make_unique<IdentityNet>(options_.data_dir);
 }
 
 FaceAnalyzer::~FaceAnalyzer() = default;
@@ -234,17 +227,9 @@ cv::Mat FaceAnalyzer::Matte(const cv::Mat& bgr) const {
 std::vector<float> FaceAnalyzer::Embedding(const cv::Mat& bgr, const Landmarks& lm) const {
   CheckImage(bgr);
   AVATAR_CHECK_INPUT(lm.points.size() == static_cast<size_t>(kMeshPoints)) << "embedding needs 468 landmarks";
-  auto p2 = [&](int i) { return cv::Point2f(lm.points[i].x, lm.points[i].y); };
-  const std::vector<cv::Point2f> src = {RegionCentre(lm, mesh_index::RightEye()), RegionCentre(lm, mesh_index::LeftEye()),
-                                        p2(mesh_index::kNoseTip), p2(mesh_index::kMouthRight), p2(mesh_index::kMouthLeft)};
-  const cv::Matx23d m = SimilarityFromPoints(src, ArcFaceTemplate());
-  // [1,112,112,3] RGB in [0,255]: measured on the sample photos, [0,1] input collapses every
-  // face onto one direction (cosine > 0.9999 between different people), 0..255 separates them.
-  const torch::Tensor input = WarpToTensor(bgr, m, kEmbedInput, kEmbedInput, 0.0f, 255.0f);
-  torch::Tensor e = models_->identity->Run(input, {"embeddings"})[0].reshape({-1});
-  e = e / e.norm().clamp_min(1e-12);
-  e = e.contiguous();
-  return std::vector<float>(e.data_ptr<float>(), e.data_ptr<float>() + e.numel());
+  // fr_feature.onnx after the ArcFace five-point alignment (identity_net.h). It replaced
+  // mobilefacenet, whose vectors barely separate people (docs/DEVIATIONS.md).
+  return models_->identity->Embed(bgr, lm);
 }
 
 AlignedPortrait FaceAnalyzer::AnalyzePortrait(const cv::Mat& bgr, RunContext& ctx, PortraitReport* report) const {

@@ -5,7 +5,8 @@
 //   Mesh     468-point facemesh, two passes: a rotated crop from the detection, then a
 //            re-crop from the first pass's landmarks.
 //   Portrait pose, FFHQ-style aligned 512x512 crop (face_geometry.h), person matte (selfie
-//            model), eye/mouth masks from landmark polygons, identity embedding (mobilefacenet).
+//            model), eye/mouth masks from landmark polygons, identity embedding (fr_feature.onnx,
+//            identity_net.h).
 // Models load once per FaceAnalyzer; every const method is thread-safe.
 
 #include <memory>
@@ -109,7 +110,8 @@ class FaceAnalyzer {
   // Person matte of a BGR8 image: CV_32FC1 in [0,1], same size.
   cv::Mat Matte(const cv::Mat& bgr) const;
 
-  // 192-d L2-normalised identity embedding of the face with these image landmarks.
+  // 512-d L2-normalised identity embedding (IdentityNet, fr_feature.onnx) of the face with these
+  // image landmarks.
   std::vector<float> Embedding(const cv::Mat& bgr, const Landmarks& image_landmarks) const;
 
  private:

@@ -44,7 +44,7 @@ struct AlignedPortrait {
   Landmarks landmarks;     // In the crop's pixel coordinates.
   HeadPose pose;
   cv::Matx23d crop_from_image = cv::Matx23d::eye();  // Similarity transform: original pixels -> crop pixels.
-  std::vector<float> embedding;                        // Identity embedding (192, L2-normalised); empty if not computed.
+  std::vector<float> embedding;                        // Identity embedding (512 (fr_feature), L2-normalised); empty if not computed.
 };
 
 }  // namespace avatar::face

@@ -70,6 +70,22 @@ ModelConfig ModelConfig::Lite() {
   return c;
 }
 
+ModelConfig ModelConfig::Cpu() {
+  ModelConfig c;
+  c.name = "cpu";
+  c.encoder = "mobilenet_v2";
+  c.image_size = 128;
+  c.render_size = 32;
+  c.num_coarse = 24;
+  c.num_importance = 24;
+  c.sr_size = 128;
+  c.sr_channel_multiplier = 1;
+  c.sr_max_channels = 64;
+  c.sr_style_dim = 64;
+  c.disc_max_channels = 64;
+  return c;
+}
+
 ModelConfig ModelConfig::Tiny() {
   ModelConfig c;
   c.name = "tiny";
@@ -100,7 +116,8 @@ ModelConfig ModelConfig::FromName(const std::string& name) {
   if (name == "paper") return Paper();
   if (name == "lite") return Lite();
   if (name == "tiny") return Tiny();
-  throw InvalidOptions("unknown model config '" + name + "' (paper, lite or tiny)");
+  if (name == "cpu") return Cpu();
+  throw InvalidOptions("unknown model config '" + name + "' (paper, lite, cpu or tiny)");
 }
 
 bool ModelConfig::operator==(const ModelConfig& other) const {

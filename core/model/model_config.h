@@ -106,8 +106,11 @@ struct ModelConfig {
 
   static ModelConfig Paper();
   static ModelConfig Lite();
+  // The CPU training default: pretrained MobileNetV2 encoders at a 128 input, planes
+  // 3x32x64^2, 32^2 renders with 24+24 samples, a narrow SR to 128 (docs/DEVIATIONS.md).
+  static ModelConfig Cpu();
   static ModelConfig Tiny();
-  // "paper", "lite" or "tiny"; throws InvalidOptions otherwise.
+  // "paper", "lite", "cpu" or "tiny"; throws InvalidOptions otherwise.
   static ModelConfig FromName(const std::string& name);
 
   bool operator==(const ModelConfig& other) const;

@@ -44,6 +44,9 @@ TEST(AnalyzeCli, PhotoReportAndFiles) {
   EXPECT_EQ(j["crop"]["size"], 512);
   EXPECT_EQ(j["crop"]["crop_from_image"].size(), 2u);
   EXPECT_NEAR(j["embedding_norm"].get<double>(), 1.0, 1e-3);
+  EXPECT_EQ(j["embedding_model"], "fr_feature.onnx");
+  EXPECT_EQ(j["embedding_size"], 512);
+  ASSERT_EQ(j["embedding"].size(), 512u);
   for (const char* stage : {"detect", "mesh", "pose", "crop", "matte", "masks", "embedding", "total"}) {
     EXPECT_GE(j["timings_ms"][stage].get<double>(), 0.0) << stage;
   }
@@ -90,7 +93,9 @@ TEST(FaceAnalyzerLoad, BrokenModelIsModelLoadNamingTheFile) {
   avatar::testing::TempDir dir;
   const fs::path models = testing::Sample("grace_hopper.jpg").parent_path().parent_path() / "models";
   fs::create_directories(dir / "models");
-  for (const auto& e : fs::directory_iterator(models)) fs::copy_file(e.path(), dir / "models" / e.path().filename());
+  for (const auto& e : fs::directory_iterator(models)) {
+    if (e.is_regular_file()) fs::copy_file(e.path(), dir / "models" / e.path().filename());  // not nsfwjs/
+  }
   std::ofstream(dir / "models" / "facemesh.json") << "{\"modelTopology\": ";
   FaceAnalyzerOptions options;
   options.data_dir = dir.path().string();

