@@ -80,6 +80,7 @@ std::vector<Command> CommandTable() {
       {"render", "render an avatar from a camera and expression", nullptr},
       {"animate", "drive an avatar with a video or keyframes and export a clip", nullptr},
       {"bench", "measure the speed of the renderer and the model", nullptr},
+      {"dataset", "build or inspect a training dataset from the packaged faces", nullptr},
       {"train", "train the network", nullptr},
       {"eval", "evaluate a trained network", nullptr},
   };

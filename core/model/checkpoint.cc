@@ -34,6 +34,8 @@ std::string DtypeName(torch::ScalarType t) {
       return "float32";
     case torch::kFloat64:
       return "float64";
+    case torch::kFloat16:
+      return "float16";
     case torch::kInt64:
       return "int64";
     case torch::kInt32:
@@ -52,6 +54,8 @@ bool DtypeFromName(const std::string& name, torch::ScalarType* t) {
     *t = torch::kFloat32;
   else if (name == "float64")
     *t = torch::kFloat64;
+  else if (name == "float16")
+    *t = torch::kFloat16;
   else if (name == "int64")
     *t = torch::kInt64;
   else if (name == "int32")

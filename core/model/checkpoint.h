@@ -36,7 +36,7 @@ struct TensorArchive {
   const torch::Tensor& Get(const std::string& name, const std::string& file = {}) const;
 };
 
-// Serialises / parses the archive bytes. Supported dtypes: float32, float64, int64, int32, uint8, bool.
+// Serialises / parses the archive bytes. Supported dtypes: float32, float64, float16, int64, int32, uint8, bool.
 std::string EncodeTensorArchive(const TensorArchive& archive);
 // `source` names the file in error messages. Throws ModelLoad.
 TensorArchive DecodeTensorArchive(const std::string& bytes, const std::string& source);

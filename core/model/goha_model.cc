@@ -237,15 +237,21 @@ int64_t CountParameters(const torch::nn::Module& module) {
   return n;
 }
 
-void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, const CheckpointInfo& info) {
+void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, const CheckpointInfo& info,
+                         bool half_precision) {
   TensorArchive archive;
   archive.kind = "goha-model";
   archive.meta = {{"config", nlohmann::json::parse(ModelConfigToJson(model->config()))},
                   {"step", info.step},
                   {"data_provenance", info.data_provenance},
                   {"created_by", info.created_by.empty() ? std::string("avatar-studio ") + kVersion : info.created_by}};
-  for (const auto& item : model->named_parameters(true)) archive.tensors.emplace_back(item.key(), item.value());
-  for (const auto& item : model->named_buffers(true)) archive.tensors.emplace_back(item.key(), item.value());
+  // Shipping weights: floating tensors rounded to float16 (half the bytes); loading widens them.
+  const auto stored = [&](const torch::Tensor& t) {
+    return half_precision && t.is_floating_point() ? t.detach().to(torch::kCPU, torch::kFloat16) : t;
+  };
+  for (const auto& item : model->named_parameters(true)) archive.tensors.emplace_back(item.key(), stored(item.value()));
+  for (const auto& item : model->named_buffers(true)) archive.tensors.emplace_back(item.key(), stored(item.value()));
+  if (half_precision) archive.meta["precision"] = "float16";
   WriteTensorArchive(path, archive);
 }
 
@@ -254,7 +260,9 @@ void LoadModelTensors(GohaModel& model, const TensorArchive& archive, const std:
   torch::NoGradGuard no_grad;
   const auto load = [&](const std::string& name, torch::Tensor& dst) {
     const torch::Tensor& src = archive.Get(name, source);
-    if (src.sizes() != dst.sizes() || src.scalar_type() != dst.scalar_type()) {
+    // A float16 file (shipping weights) loads into a floating model; nothing else changes type.
+    const bool widened = src.scalar_type() == torch::kFloat16 && dst.is_floating_point();
+    if (src.sizes() != dst.sizes() || (src.scalar_type() != dst.scalar_type() && !widened)) {
       std::ostringstream why;
       why << source << ": tensor '" << name << "' has shape " << src.sizes() << " " << src.scalar_type()
           << " but the model expects " << dst.sizes() << " " << dst.scalar_type();

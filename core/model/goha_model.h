@@ -144,7 +144,10 @@ TORCH_MODULE(GohaModel);
 int64_t CountParameters(const torch::nn::Module& module);
 
 // Model checkpoints (kind "goha-model"): config + every parameter and buffer + CheckpointInfo.
-void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, const CheckpointInfo& info);
+// half_precision: floating tensors are stored as float16 (shipping weights; LoadModelCheckpoint
+// widens them to the model's type).
+void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, const CheckpointInfo& info,
+                         bool half_precision = false);
 struct LoadedModel {
   GohaModel model{nullptr};
   CheckpointInfo info;

@@ -310,13 +310,14 @@ void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
   }
 }
 
-void StageOneTrainer::ExportWeights(const fs::path& path, const std::string& data_provenance) const {
+void StageOneTrainer::ExportWeights(const fs::path& path, const std::string& data_provenance,
+                                    bool half_precision) const {
   if (!AllFinite()) throw InvalidInput(path.string() + ": not written: the weights have a non-finite value");
   CheckpointInfo info;
   info.step = step_;
   info.data_provenance = data_provenance;
   GohaModel model = model_;
-  SaveModelCheckpoint(path, model, info);
+  SaveModelCheckpoint(path, model, info, half_precision);
 }
 
 void RunOptions::Validate() const {
@@ -407,6 +408,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   if (options.progress) std::cerr << "\n";
   save();
   trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
+  trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);
   result.last_step = trainer.step();
   result.skipped = trainer.skipped_steps();
   return result;

@@ -138,7 +138,9 @@ class StageOneTrainer {
   void SaveState(const std::filesystem::path& path, const BatchSource* source = nullptr) const;
   void LoadState(const std::filesystem::path& path, BatchSource* source = nullptr);
   // Weights-only model checkpoint (LoadModelCheckpoint reads it). Throws on non-finite weights.
-  void ExportWeights(const std::filesystem::path& path, const std::string& data_provenance) const;
+  // half_precision: float16 shipping weights (half the size; loads into the float32 model).
+  void ExportWeights(const std::filesystem::path& path, const std::string& data_provenance,
+                     bool half_precision = false) const;
 
   GohaModel& model() { return model_; }
   const TrainerOptions& options() const { return options_; }

@@ -67,7 +67,7 @@ TEST(Cli, UnknownFlagIsAUsageError) {
 }
 
 TEST(Cli, ReservedCommandSaysItIsNotAvailableYet) {
-  const auto r = Studio("train");
+  const auto r = Studio("eval");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("not available"), std::string::npos) << r.err;
 }

@@ -448,6 +448,17 @@ TEST(Trainer, WeightsExportLoadsAsAModelCheckpoint) {
   const auto wa = Weights(trainer.model()), wb = Weights(m);
   ASSERT_EQ(wa.size(), wb.size());
   for (size_t i = 0; i < wa.size(); ++i) ASSERT_TRUE(torch::equal(wa[i], wb[i]));
+  // Shipping weights in float16: about half the bytes, loaded back as float32 equal to the
+  // weights rounded to float16.
+  trainer.ExportWeights(dir / "model-fp16.ckpt", "synthetic test pair", /*half_precision=*/true);
+  EXPECT_LT(fs::file_size(dir / "model-fp16.ckpt"), 0.6 * fs::file_size(dir / "model.ckpt"));
+  GohaModel half = LoadModelCheckpoint(dir / "model-fp16.ckpt").model;
+  const auto wh = Weights(half);
+  ASSERT_EQ(wh.size(), wa.size());
+  for (size_t i = 0; i < wa.size(); ++i) {
+    ASSERT_EQ(wh[i].scalar_type(), torch::kFloat32);
+    ASSERT_TRUE(torch::equal(wh[i], wa[i].to(torch::kFloat16).to(torch::kFloat32))) << i;
+  }
   fs::remove_all(dir);
 }
 
