@@ -29,8 +29,8 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
   const cv::Mat image = LoadImageBgr(options.input);
   const Avatar avatar = session.Reconstruct(image, ctx);
   session.SaveAvatar(avatar, options.output);
-  std::cout << "Reconstructed '" << options.input << "' with model " << info.model_id << " (config " << info.config_name
-            << ") in " << timer.Seconds() << " s and wrote '" << options.output << "'.\n";
+  std::cout << "Reconstructed '" << options.input << "' with the " << DescribeModel(info) << " in " << timer.Seconds()
+            << " s and wrote '" << options.output << "'.\n";
   return kExitOk;
 }
 

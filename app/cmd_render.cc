@@ -68,7 +68,8 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
   }
   SaveImage(options.output, out);
   std::cout << "Rendered '" << options.input << "' (" << frame.bgr.cols << "x" << frame.bgr.rows << ", preset "
-            << options.preset << ") to '" << options.output << "'";
+            << options.preset << (frame.upsampled ? ", render upsampled" : "") << ") with the "
+            << DescribeModel(session.Info()) << " to '" << options.output << "'";
   if (options.depth) {
     std::filesystem::path depth_path = options.output;
     depth_path.replace_filename(depth_path.stem().string() + "_depth.png");

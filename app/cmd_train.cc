@@ -1,18 +1,30 @@
-// `avatar-studio train --config C --data DIR --out RUN [--resume] [--steps N] [--hours H]`:
-// stage I of GOHA's training (core/train/trainer.h) on a dataset written by `dataset build`.
-// C is a preset (paper, lite, tiny) or a JSON file of ModelConfig fields (missing fields take
-// the paper's values). Writes RUN/state.ckpt (resumable state), RUN/train.jsonl (per-step log)
-// and RUN/model.ckpt (weights at the end); Ctrl+C or SIGTERM writes the state and stops.
+// `avatar-studio train --config C --data DIR --out RUN [--stage 1|2] [--init-weights CKPT]
+// [--resume] [--steps N] [--hours H]`: stage I or II of GOHA's training (core/train/trainer.h)
+// on a dataset written by `dataset build`. C is a preset (paper, lite, cpu, tiny) or a JSON file
+// of ModelConfig fields (missing fields take the paper's values). Writes RUN/state.ckpt
+// (resumable state), RUN/train.jsonl (per-step log), RUN/model.ckpt and RUN/model-fp16.ckpt
+// (weights at the end), RUN/samples/step-XXXXXXX.png (sample grids) and RUN/curve.png (loss
+// curves by scripts/plot-training at each state write, when python3 is there); Ctrl+C or
+// SIGTERM writes the state and stops.
 
 #include <algorithm>
 #include <csignal>
+#include <cstdio>
 #include <filesystem>
 #include <iostream>
 
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "app/commands.h"
 #include "core/io/atomic_file.h"
+#include "core/io/image_io.h"
 #include "core/model/goha_model.h"
 #include "core/model/super_resolution.h"
 #include "core/train/dataset.h"
@@ -49,6 +61,10 @@ struct TrainCommandOptions {
   std::string perceptual = "mobilenet";
   // Progress line on stderr.
   bool progress = true;
+  // Start a fresh run from these model weights (and their step).
+  std::string init_weights;
+  // Sample grid every this many steps (0 = only at the end).
+  int64_t sample_every = 200;
   train::TrainerOptions trainer;
   CommonOptions common;
 
@@ -56,7 +72,11 @@ struct TrainCommandOptions {
   void Visit(V&& v) {
     v("config", config, "Model preset (paper, lite, cpu, tiny) or a JSON file of model-config fields", 'c');
     v("data", data, "Dataset folder written by 'avatar-studio dataset build'", 'd');
-    v("out", out, "Run folder (state.ckpt, train.jsonl, model.ckpt)", 'o');
+    v("out", out, "Run folder (state.ckpt, train.jsonl, model.ckpt, samples/, curve.png)", 'o');
+    v("stage", trainer.stage, "Training stage: 1 (all branches) or 2 (super-resolution only, with the dual discriminator)");
+    v("init_weights", init_weights,
+      "Fresh run (no RUN/state.ckpt) from this model checkpoint (fp16 too), counting on from its step (give "
+      "the original --curriculum-steps to keep the schedule); stage II starts from stage-I weights this way");
     v("resume", resume, "Continue from RUN/state.ckpt");
     v("steps", steps, "Train until this step");
     v("hours", hours, "Stop after this many hours (0 = no limit)");
@@ -65,12 +85,16 @@ struct TrainCommandOptions {
     v("checkpoint_minutes", checkpoint_minutes, "Minutes between state writes");
     v("perceptual", perceptual, "Perceptual term: mobilenet, pyramid (stand-in) or none");
     v("progress", progress, "Progress line on stderr");
+    v("sample_every", sample_every, "Sample grid RUN/samples/step-N.png every N steps, and at the end (0 = end only)");
     v("device", trainer.device, "Device: cpu or cuda[:N]");
     v("lr", trainer.lr, "Adam learning rate");
     v("grad_clip", trainer.grad_clip, "Global gradient-norm clip (<= 0: none)");
     v("perceptual_weight", trainer.perceptual_weight, "Weight of the perceptual term");
     v("neutral_weight", trainer.neutral_weight, "Weight of the neutral loss");
     v("tv_weight", trainer.tv_weight, "Weight of the density TV loss");
+    v("gan_weight", trainer.gan_weight, "Stage II: weight of the non-saturating adversarial loss of the SR");
+    v("r1_gamma", trainer.r1_gamma, "Stage II: R1 gamma of the discriminator (lazy, every 16 steps; 0 = off)");
+    v("d_lr", trainer.d_lr, "Stage II: discriminator learning rate");
     v("rotation", trainer.rotation, "The release's mod-6 rotation of step kinds");
     v("max_bad_steps", trainer.max_bad_steps, "Non-finite steps in a row that stop the run");
     v("seed", trainer.seed, "Seed of the initialisation, the renders' jitter and the data order");
@@ -82,6 +106,9 @@ struct TrainCommandOptions {
     AVATAR_CHECK_OPTION(!out.empty()) << "--out must name the run folder";
     AVATAR_CHECK_OPTION(steps >= 0 && curriculum_steps >= 0) << "--steps and --curriculum-steps must be >= 0";
     AVATAR_CHECK_OPTION(batch_size >= 1) << "--batch-size must be >= 1";
+    AVATAR_CHECK_OPTION(sample_every >= 0) << "--sample-every must be >= 0";
+    AVATAR_CHECK_OPTION(init_weights.empty() || fs::exists(init_weights))
+        << "--init-weights: no such file '" << init_weights << "'";
     AVATAR_CHECK_OPTION(perceptual == "mobilenet" || perceptual == "pyramid" || perceptual == "none")
         << "--perceptual must be mobilenet, pyramid or none";
     trainer.Validate();
@@ -136,6 +163,77 @@ class LoaderSource : public train::BatchSource {
 
 void OnSigterm(int) { ProcessContext().RequestCancel(); }
 
+// [3,H,W] in [0,1] -> 8-bit BGR cell x cell.
+cv::Mat ToCell(const torch::Tensor& chw, int cell) {
+  const torch::Tensor hwc =
+      (chw.detach().to(torch::kCPU, torch::kFloat32).clamp(0, 1) * 255.0 + 0.5).to(torch::kUInt8).permute({1, 2, 0})
+          .contiguous();
+  cv::Mat rgb(static_cast<int>(hwc.size(0)), static_cast<int>(hwc.size(1)), CV_8UC3, hwc.data_ptr<uint8_t>());
+  cv::Mat bgr, out;
+  cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+  cv::resize(bgr, out, cv::Size(cell, cell), 0, 0, bgr.cols > cell ? cv::INTER_AREA : cv::INTER_NEAREST);
+  return out;
+}
+
+// RUN/samples/step-XXXXXXX.png: one row per pair: source, target, I_c, I_c+e, I_c+e+p[, SR].
+void WriteSampleGrid(const fs::path& run, int64_t step, const train::StageOneTrainer::Renders& r, int cell) {
+  std::vector<torch::Tensor> columns = {r.source, r.target, r.canonical, r.expression, r.full};
+  if (r.super_resolved.defined()) columns.push_back(r.super_resolved);
+  std::vector<cv::Mat> rows;
+  for (int64_t i = 0; i < r.full.size(0); ++i) {
+    std::vector<cv::Mat> cells;
+    for (const auto& c : columns) cells.push_back(ToCell(c[i], cell));
+    cv::Mat row;
+    cv::hconcat(cells, row);
+    rows.push_back(row);
+  }
+  cv::Mat grid;
+  cv::vconcat(rows, grid);
+  fs::create_directories(run / "samples");
+  char name[64];
+  std::snprintf(name, sizeof(name), "step-%07lld.png", static_cast<long long>(step));
+  SaveImage(run / "samples" / name, grid);
+}
+
+// scripts/plot-training next to the source tree the binary was built in (searched upwards from
+// the executable, then from the working directory); empty when absent.
+fs::path FindPlotScript() {
+  std::error_code ec;
+  std::vector<fs::path> starts = {fs::read_symlink("/proc/self/exe", ec).parent_path(), fs::current_path(ec)};
+  for (fs::path dir : starts) {
+    for (int up = 0; up < 6 && !dir.empty(); ++up, dir = dir.parent_path()) {
+      const fs::path candidate = dir / "scripts" / "plot-training";
+      if (fs::exists(candidate, ec)) return candidate;
+      if (dir == dir.parent_path()) break;
+    }
+  }
+  return {};
+}
+
+extern "C" char** environ;
+
+// Redraws RUN/curve.png; every failure is a warning.
+void PlotCurve(const fs::path& run, const fs::path& script) {
+  if (script.empty()) return;
+  const std::string log = train::LogPath(run).string(), png = (run / "curve.png").string(), py = "python3",
+                    s = script.string();
+  std::vector<char*> argv = {const_cast<char*>(py.c_str()), const_cast<char*>(s.c_str()),
+                             const_cast<char*>(log.c_str()), const_cast<char*>(png.c_str()), nullptr};
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+  pid_t pid = 0;
+  const int rc = posix_spawnp(&pid, py.c_str(), &actions, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (rc != 0) {
+    std::cerr << "\ntrain: warning: cannot start python3 for the loss curve\n";
+    return;
+  }
+  int status = 0;
+  if (::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
+    std::cerr << "\ntrain: warning: scripts/plot-training failed; " << png << " not updated\n";
+}
+
 int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   o.Validate();
   const ModelConfig config = ResolveConfig(o.config);
@@ -166,7 +264,12 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   }
 
   torch::manual_seed(static_cast<uint64_t>(o.trainer.seed));
-  train::StageOneTrainer trainer(GohaModel(config), o.trainer, perceptual);
+  // Weights that come from a file (a state to resume, --init-weights) need no pretrained backbones.
+  const bool resuming = o.resume && fs::exists(train::StatePath(o.out));
+  GohaModelOptions model_options;
+  model_options.data_dir = o.common.data_dir;
+  model_options.pretrained = !resuming && o.init_weights.empty();
+  train::StageOneTrainer trainer(GohaModel(config, model_options), o.trainer, perceptual);
   train::RunOptions run;
   run.out_dir = o.out;
   run.steps = o.steps;
@@ -174,11 +277,38 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   run.resume = o.resume;
   run.checkpoint_minutes = o.checkpoint_minutes;
   run.progress = o.progress;
-  run.data_provenance = "stage I on " + fs::absolute(o.data).string() + " (" + std::to_string(dataset.size()) + " pairs)";
-  std::cerr << "train: config " << config.name << ", " << dataset.size() << " pairs, batch " << o.batch_size
-            << ", steps to " << o.steps << " (expression from " << o.trainer.expression_start << ", appearance from "
-            << o.trainer.appearance_start << "), device " << o.trainer.device << ", perceptual " << o.perceptual
-            << "\n";
+  run.data_provenance = std::string(o.trainer.stage == 2 ? "stage II" : "stage I") + " on " +
+                        fs::absolute(o.data).string() + " (" + std::to_string(dataset.size()) + " pairs)";
+  if (!o.init_weights.empty()) {
+    if (resuming)
+      std::cerr << "train: " << train::StatePath(o.out).string() << " exists: resuming it, --init-weights ignored\n";
+    else
+      run.init_weights = o.init_weights;
+  }
+  const fs::path out_dir = o.out;
+  const int cell = std::clamp(config.render_size, 128, 256);
+  run.sample_every = o.sample_every;
+  run.on_samples = [out_dir, cell](int64_t step, const train::StageOneTrainer::Renders& r) {
+    try {
+      WriteSampleGrid(out_dir, step, r, cell);
+    } catch (const std::exception& e) {
+      std::cerr << "\ntrain: warning: sample grid of step " << step << " not written: " << e.what() << "\n";
+    }
+  };
+  const fs::path script = FindPlotScript();
+  if (script.empty()) std::cerr << "train: scripts/plot-training not found: no RUN/curve.png\n";
+  run.on_state_written = [out_dir, script](int64_t) { PlotCurve(out_dir, script); };
+  std::cerr << "train: stage " << o.trainer.stage << ", config " << config.name << ", " << dataset.size() << " pairs, batch " << o.batch_size
+            << ", steps to " << o.steps;
+  if (o.trainer.stage == 1)
+    std::cerr << " (expression from " << o.trainer.expression_start << ", appearance from "
+              << o.trainer.appearance_start << ")";
+  else
+    std::cerr << " (super-resolution only, GAN weight " << o.trainer.gan_weight << ", R1 gamma " << o.trainer.r1_gamma
+              << ")";
+  std::cerr << ", device " << o.trainer.device << ", perceptual " << o.perceptual << "\n";
+  if (o.trainer.stage == 2 && run.init_weights.empty() && !resuming)
+    std::cerr << "train: warning: stage II without --init-weights trains the SR behind an untrained stage-I network\n";
   const auto previous = std::signal(SIGTERM, OnSigterm);
   train::RunResult r;
   try {
@@ -198,9 +328,17 @@ int RunTrain(const std::vector<std::string>& args) {
   return GuardedRun("train", [&] {
     TrainCommandOptions options;
     std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio train --config C --data DIR --out RUN [--resume] [--steps N] [--hours H]",
-                      "Stage I of GOHA's training: canonical, expression and appearance renders against the target "
-                      "(L1 + perceptual), the neutral loss and the density TV loss, with the paper's curriculum.",
+    if (!ParseCommand(options, args,
+                      "avatar-studio train --config C --data DIR --out RUN [--stage 1|2] [--init-weights CKPT] "
+                      "[--resume] [--steps N] [--hours H]",
+                      "GOHA's training. Stage I (--stage 1): canonical, expression and appearance renders against the "
+                      "target (L1 + perceptual), the neutral loss and the density TV loss, with the paper's curriculum. "
+                      "Stage II (--stage 2): the stage-I network frozen, only the super-resolution module trains: L1 + "
+                      "perceptual of its output against the target at SR resolution, plus --gan-weight x the "
+                      "non-saturating loss of a dual discriminator (SR output + raw render; R1 gamma 10 every 16 "
+                      "steps). Start stage II in a new folder with --init-weights STAGE1_RUN/model.ckpt; "
+                      "--steps counts from the checkpoint's step. Samples: RUN/samples/step-N.png (rows: source, "
+                      "target, I_c, I_c+e, I_c+e+p[, SR]); loss curves: RUN/curve.png.",
                       &positionals)) {
       return kExitOk;
     }
@@ -211,6 +349,6 @@ int RunTrain(const std::vector<std::string>& args) {
 
 }  // namespace
 
-AVATAR_REGISTER_COMMAND("train", "train the network (stage I)", RunTrain);
+AVATAR_REGISTER_COMMAND("train", "train the network (stage I or II)", RunTrain);
 
 }  // namespace avatar::app

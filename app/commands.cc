@@ -82,7 +82,7 @@ std::vector<Command> CommandTable() {
       {"bench", "measure the speed of the renderer and the model", nullptr},
       {"dataset", "build or inspect a training dataset from the packaged faces", nullptr},
       {"train", "train the network", nullptr},
-      {"eval", "evaluate a trained network", nullptr},
+      {"eval", "evaluate a trained network on a dataset split", nullptr},
   };
   for (const Command& registered : Registry()) {
     bool reserved = false;

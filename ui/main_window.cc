@@ -323,6 +323,7 @@ BackendOptions MainWindow::backendOptions() const {
   BackendOptions o;
   o.preset = source_panel_->preset().toStdString();
   o.random_weights = source_panel_->randomWeights();
+  o.renderer = source_panel_->morphablePreview() ? "morphable" : "neural";
   return o;
 }
 
@@ -595,8 +596,9 @@ void MainWindow::showAbout() {
   QMessageBox::about(this, tr("About Avatar Studio"),
                      tr("<b>Avatar Studio %1</b><p>Turns one portrait photo into an animatable 3D head avatar "
                         "(Generalizable One-shot Neural Head Avatar, NeurIPS 2023).</p>"
-                        "<p>The neural model is not trained yet: the viewport shows what really renders today, "
-                        "and says so.</p>")
+                        "<p>The viewport renders the bundled neural avatar model (a small CPU model trained on "
+                        "this project's packaged photos; see docs/MODEL.md), or the morphable-model preview when "
+                        "chosen or when no model loads. Its label always says which.</p>")
                          .arg(QString::fromLatin1(kVersion)));
 }
 

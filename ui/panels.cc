@@ -82,7 +82,7 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
   preset_ = new QComboBox(this);
   preset_->addItem(tr("Lite (fast, CPU)"), "lite");
   preset_->addItem(tr("Paper (slow)"), "paper");
-  preset_->setToolTip(tr("Network configuration used to reconstruct and render (Alt+P)"));
+  preset_->setToolTip(tr("Network size of the random-weight plumbing check (a trained model carries its own) (Alt+P)"));
   preset_->setCurrentIndex(std::max(0, preset_->findData(QSettings().value("source/preset", "lite"))));
   auto* preset_label = new QLabel(tr("&Preset:"), this);
   preset_label->setBuddy(preset_);
@@ -93,10 +93,19 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
     emit presetChanged(preset());
   });
 
+  morphable_preview_ = new QCheckBox(tr("&Morphable preview instead of the neural avatar"), this);
+  morphable_preview_->setToolTip(
+      tr("Shows the textured morphable-model face fitted to the portrait (fast; no hair or ears) instead of the "
+         "bundled neural avatar model. (Alt+M)"));
+  morphable_preview_->setChecked(QSettings().value("source/morphablePreview", false).toBool());
+  connect(morphable_preview_, &QCheckBox::toggled, this,
+          [](bool on) { QSettings().setValue("source/morphablePreview", on); });
+  layout->addWidget(morphable_preview_);
+
   random_weights_ = new QCheckBox(tr("Use &random network weights"), this);
   random_weights_->setToolTip(
       tr("Runs the untrained neural network with random weights: a plumbing check whose frames are NOT a "
-         "result. Off: the honest morphable-model preview. (Alt+R)"));
+         "result. (Alt+R)"));
   layout->addWidget(random_weights_);
 
   reconstruct_ = new QPushButton(tr("Reconstruct"), this);
@@ -133,6 +142,7 @@ void SourcePanel::setStatus(const QString& text) { status_->setText(text); }
 QString SourcePanel::preset() const { return preset_->currentData().toString(); }
 void SourcePanel::setPreset(const QString& preset) { preset_->setCurrentIndex(std::max(0, preset_->findData(preset))); }
 bool SourcePanel::randomWeights() const { return random_weights_->isChecked(); }
+bool SourcePanel::morphablePreview() const { return morphable_preview_->isChecked(); }
 
 // ---------------------------------------------------------------------------- PosePanel
 

@@ -35,8 +35,11 @@ class SourcePanel : public QWidget {
   QString preset() const;
   void setPreset(const QString& preset);
   bool randomWeights() const;
+  // The user chose the morphable preview instead of the neural avatar.
+  bool morphablePreview() const;
   QPushButton* reconstructButton() const { return reconstruct_; }
   QCheckBox* randomWeightsBox() const { return random_weights_; }
+  QCheckBox* morphablePreviewBox() const { return morphable_preview_; }
 
  signals:
   void reconstructRequested();
@@ -48,6 +51,7 @@ class SourcePanel : public QWidget {
   QLabel* status_ = nullptr;
   QComboBox* preset_ = nullptr;
   QCheckBox* random_weights_ = nullptr;
+  QCheckBox* morphable_preview_ = nullptr;
   QPushButton* reconstruct_ = nullptr;
   QImage portrait_;
   SourceOverlay overlay_;

@@ -53,6 +53,10 @@ struct CheckpointInfo {
   int64_t step = 0;             // training step the weights come from (0 = random init)
   std::string data_provenance;  // what the weights were trained on ("random init" for none)
   std::string created_by;       // program and version
+  // Whether the super-resolution module was trained (stage II). Stage-I weights leave it at its
+  // initialisation; renderers then upsample the raw render instead of running it. Files written
+  // before this field existed read as false.
+  bool sr_trained = false;
 };
 
 }  // namespace avatar

@@ -244,7 +244,8 @@ void SaveModelCheckpoint(const std::filesystem::path& path, GohaModel& model, co
   archive.meta = {{"config", nlohmann::json::parse(ModelConfigToJson(model->config()))},
                   {"step", info.step},
                   {"data_provenance", info.data_provenance},
-                  {"created_by", info.created_by.empty() ? std::string("avatar-studio ") + kVersion : info.created_by}};
+                  {"created_by", info.created_by.empty() ? std::string("avatar-studio ") + kVersion : info.created_by},
+                  {"sr_trained", info.sr_trained}};
   // Shipping weights: floating tensors rounded to float16 (half the bytes); loading widens them.
   const auto stored = [&](const torch::Tensor& t) {
     return half_precision && t.is_floating_point() ? t.detach().to(torch::kCPU, torch::kFloat16) : t;
@@ -289,6 +290,7 @@ LoadedModel LoadModelCheckpoint(const std::filesystem::path& path, std::string* 
     loaded.info.step = archive.meta.at("step").get<int64_t>();
     loaded.info.data_provenance = archive.meta.at("data_provenance").get<std::string>();
     loaded.info.created_by = archive.meta.value("created_by", std::string());
+    loaded.info.sr_trained = archive.meta.value("sr_trained", false);
   } catch (const nlohmann::json::exception& e) {
     throw ModelLoad(path.string() + ": checkpoint metadata is incomplete: " + e.what());
   } catch (const InvalidOptions& e) {

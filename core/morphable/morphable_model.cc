@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/io/atomic_file.h"
+#include "core/io/resources.h"
 #include "core/util/error.h"
 
 namespace avatar::morphable {
@@ -220,13 +221,7 @@ MorphableModel MorphableModel::Load(const std::filesystem::path& path, const Top
 
 std::filesystem::path DefaultModelPath() {
   if (const char* env = std::getenv("AVATAR_MORPHABLE_MODEL"); env != nullptr && env[0] != '\0') return env;
-  std::error_code ec;
-  const auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
-  if (!ec) {
-    const auto installed = exe.parent_path().parent_path() / "share" / "avatar-studio" / kDefaultModelFile;
-    if (std::filesystem::exists(installed, ec)) return installed;
-  }
-  return std::filesystem::path(AVATAR_SOURCE_DIR) / "resources" / kDefaultModelFile;
+  return ResourcePath(kDefaultModelFile);
 }
 
 const MorphableModel& LoadDefaultModel(const DataPaths& paths) {

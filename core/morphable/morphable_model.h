@@ -109,8 +109,8 @@ class MorphableModel {
   std::string build_info_json_ = "{}";
 };
 
-// Where the default model is: $AVATAR_MORPHABLE_MODEL, else <install prefix>/share/avatar-studio/
-// morphable/face_model.avmm next to the executable, else the source tree's resources/ folder.
+// Where the default model is: $AVATAR_MORPHABLE_MODEL, else ResourcePath(kDefaultModelFile)
+// (core/io/resources.h: the install's share/avatar-studio/, else the source tree's resources/).
 std::filesystem::path DefaultModelPath();
 // Loads the default model with the installed topology. Throws MissingData / ModelLoad with what to do.
 const MorphableModel& LoadDefaultModel(const DataPaths& paths);

@@ -58,15 +58,19 @@ ViewPose PoseOfFit(const morphable::FitResult& fit) {
 }
 
 MorphablePreviewSource::MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit,
-                                               morphable::Texture texture, SourceOverlay overlay)
-    : model_(model), fit_(std::move(fit)), texture_(std::move(texture)), overlay_(std::move(overlay)) {
+                                               morphable::Texture texture, SourceOverlay overlay, std::string label)
+    : model_(model),
+      fit_(std::move(fit)),
+      texture_(std::move(texture)),
+      overlay_(std::move(overlay)),
+      label_(std::move(label)) {
   AVATAR_CHECK_INPUT(static_cast<int>(fit_.beta.size()) == model_.num_expression() &&
                      static_cast<int>(fit_.alpha.size()) == model_.num_identity())
       << "the fit does not belong to this morphable model";
   source_pose_ = PoseOfFit(fit_);
 }
 
-std::string MorphablePreviewSource::Label() const { return kMorphablePreviewLabel; }
+std::string MorphablePreviewSource::Label() const { return label_; }
 
 std::vector<std::string> MorphablePreviewSource::ExpressionControls() const {
   std::vector<std::string> names;

@@ -1,8 +1,8 @@
 #pragma once
-// The honest pre-training avatar: the morphable face model fitted to the portrait, textured
-// from the portrait, and rendered by the CPU rasterizer at any head pose and expression.
-// Until the neural network has trained weights this is what the studio and `animate` show,
-// always labelled "Preview: morphable model (neural model not trained yet)".
+// The morphable preview: the morphable face model fitted to the portrait, textured from the
+// portrait, and rendered by the CPU rasterizer at any head pose and expression. The studio and
+// `animate` show it when the user chooses it (--renderer morphable) or when no neural model
+// loads, always labelled "Preview: morphable model (...why...)".
 //
 // Pose convention (ViewPose): the head turns by yaw (> 0: towards the image's left), pitch
 // (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera,
@@ -28,12 +28,17 @@ ViewPose PoseFromRotation(const cv::Matx33d& rotation);
 // The head pose of a fit: its world->camera rotation relative to the frontal camera's.
 ViewPose PoseOfFit(const morphable::FitResult& fit);
 
+// The label every morphable preview frame starts with (CreateFrameSource adds why it is shown:
+// chosen by the user, or the neural model could not be loaded and the reason).
+inline constexpr const char* kMorphablePreviewLabel = "Preview: morphable model";
+
 class MorphablePreviewSource : public FrameSource {
  public:
   // `model` must outlive the source (LoadDefaultModel's models live for the process).
   // `fit` and `texture` describe the portrait; `overlay` is drawn over the source thumbnail.
+  // `label` is what Label() says (kMorphablePreviewLabel plus why the preview is shown).
   MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit, morphable::Texture texture,
-                         SourceOverlay overlay = {});
+                         SourceOverlay overlay = {}, std::string label = kMorphablePreviewLabel);
 
   std::string Label() const override;
   bool SupportsPose() const override { return true; }
@@ -52,6 +57,7 @@ class MorphablePreviewSource : public FrameSource {
   morphable::Texture texture_;
   SourceOverlay overlay_;
   ViewPose source_pose_;
+  std::string label_;
 };
 
 // The named controls whose combination best matches expression coefficients `beta` (least
@@ -60,8 +66,6 @@ class MorphablePreviewSource : public FrameSource {
 std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
                                                       const std::vector<float>& beta);
 
-// The label every morphable preview frame carries.
-inline constexpr const char* kMorphablePreviewLabel = "Preview: morphable model (neural model not trained yet)";
 
 // Measures driving frames: tracks the face through the video and fits the morphable model
 // per frame (expression coefficients + head pose). `landmarks_of` returns the frame's

@@ -12,6 +12,7 @@
 
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
+#include "core/io/resources.h"
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
 #include "core/pipeline/source_analysis.h"
@@ -201,19 +202,61 @@ struct Session::Impl {
   }
 };
 
+std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin) {
+  const auto set = [&](const char* o) {
+    if (origin != nullptr) *origin = o;
+  };
+  if (!options.checkpoint.empty()) {
+    set("checkpoint");
+    return options.checkpoint;
+  }
+  if (options.random_weights) {
+    set("random");
+    return {};
+  }
+  std::error_code ec;
+  const std::filesystem::path installed = DataPaths::Resolve(options.data_dir).Path("models/goha.ckpt");
+  if (std::filesystem::exists(installed, ec)) {
+    set("installed");
+    return installed;
+  }
+  const std::filesystem::path bundled = ResourcePath(kBundledModelFile);
+  if (std::filesystem::exists(bundled, ec)) {
+    set("bundled");
+    return bundled;
+  }
+  std::string looked = installed.string();
+  for (const auto& p : ResourceCandidates(kBundledModelFile)) looked += ", " + p.string();
+  throw MissingData("No GOHA model found (looked for " + looked +
+                    "). The bundled model ships in the package and the source tree's resources/models/; "
+                    "reinstall the package, or pass --checkpoint FILE.");
+}
+
+std::string DescribeModel(const ModelInfo& info) {
+  std::ostringstream out;
+  if (info.origin == "random") {
+    out << "UNTRAINED network with random weights (" << info.model_id << ", config " << info.config_name
+        << "): not a result";
+    return out.str();
+  }
+  const char* origin = info.origin == "bundled"     ? "bundled neural model"
+                       : info.origin == "installed" ? "installed neural model"
+                                                    : "neural model";
+  out << origin << " " << info.model_id << " (config " << info.config_name << ", " << info.step
+      << " training steps";
+  if (!info.sr_trained) out << "; super-resolution not trained: upsampled";
+  out << ")";
+  if (info.origin != "bundled" && !info.checkpoint_path.empty()) out << " from '" << info.checkpoint_path << "'";
+  return out.str();
+}
+
 Session::Session(const SessionOptions& options) : impl_(std::make_unique<Impl>()) {
   options.Validate();
   impl_->options = options;
-  std::filesystem::path checkpoint = options.checkpoint;
-  if (checkpoint.empty() && !options.random_weights) {
-    checkpoint = DataPaths::Resolve(options.data_dir).Path("models/goha.ckpt");
-    if (!std::filesystem::exists(checkpoint)) {
-      throw MissingData("No GOHA model is installed: " + checkpoint.string() +
-                        " does not exist. Avatar Studio does not ship trained weights yet (training is a later "
-                        "release). Pass --checkpoint FILE to use a trained model, or --random-weights to run the "
-                        "untrained network (its output is meaningless noise; for testing only).");
-    }
-  }
+  std::string origin;
+  const std::filesystem::path checkpoint = ResolveCheckpoint(options, &origin);
+  impl_->info.origin = origin;
+  impl_->info.checkpoint_path = checkpoint.string();
   if (!checkpoint.empty()) {
     std::string fingerprint;
     LoadedModel loaded = LoadModelCheckpoint(checkpoint, &fingerprint);
@@ -221,6 +264,7 @@ Session::Session(const SessionOptions& options) : impl_(std::make_unique<Impl>()
     impl_->info.model_id = "ckpt:" + fingerprint;
     impl_->info.step = loaded.info.step;
     impl_->info.data_provenance = loaded.info.data_provenance;
+    impl_->info.sr_trained = loaded.info.sr_trained;
   } else {
     std::lock_guard<std::mutex> lock(g_seed_mutex);
     torch::manual_seed(static_cast<uint64_t>(options.seed));
@@ -310,10 +354,22 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
     const render::RenderOutput out = model->Render(planes, cameras, resolution);
     Frame frame;
     frame.render_size = resolution;
-    if (preset == Preset::kFinal) {
+    // Random weights are a plumbing check of every module, the SR included.
+    const bool run_sr = impl_->info.sr_trained || impl_->info.origin == "random";
+    if (preset == Preset::kFinal && run_sr) {
       if (ctx != nullptr) ctx->Report("animate", 0.7, "super-resolution");
       frame.bgr = TensorToBgr(model->SuperResolve(out.rgb));
       frame.super_resolved = true;
+    } else if (preset == Preset::kFinal) {
+      // Stage-I weights: the SR module is still at its initialisation, so its output would be
+      // noise. Bicubic upsampling keeps the frame honest at the requested size.
+      const torch::Tensor up = torch::nn::functional::interpolate(
+          out.rgb, torch::nn::functional::InterpolateFuncOptions()
+                       .size(std::vector<int64_t>{c.sr_size, c.sr_size})
+                       .mode(torch::kBicubic)
+                       .align_corners(false));
+      frame.bgr = TensorToBgr(up);
+      frame.upsampled = true;
     } else {
       frame.bgr = TensorToBgr(out.rgb);
     }
@@ -367,11 +423,13 @@ Avatar Session::LoadAvatar(const std::filesystem::path& path) const {
   const ModelConfig& c = impl_->model->config();
   if (state->config != c) {
     throw ModelLoad(file + ": the avatar was made with model config '" + state->config.name +
-                    "' but this session runs '" + c.name + "'");
+                    "' (model '" + state->model_id + "') but this session runs '" + c.name +
+                    "'; reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
   }
   if (state->model_id != impl_->info.model_id) {
     throw ModelLoad(file + ": the avatar was made with model '" + state->model_id + "' but this session runs '" +
-                    impl_->info.model_id + "'; reconstruct the portrait again");
+                    impl_->info.model_id +
+                    "'; reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
   }
   const std::vector<int64_t> plane_shape = {1, 3, c.plane_channels, c.plane_size(), c.plane_size()};
   state->canonical = archive.Get("avatar.canonical", file);

@@ -82,10 +82,14 @@ struct Frame {
   cv::Mat depth;        // [H,W] CV_32FC1 expected depth along the ray (far plane 3.3 for empty rays)
   int render_size = 0;  // side of the volume render behind this frame
   bool super_resolved = false;
+  // kFinal with a model whose super-resolution is untrained (stage-I weights): the render was
+  // upsampled bicubically to sr_size instead (see ModelInfo::sr_trained).
+  bool upsampled = false;
 };
 
 struct SessionOptions {
-  // Model checkpoint (.ckpt); "" = <data dir>/models/goha.ckpt.
+  // Model checkpoint (.ckpt). "" = <data dir>/models/goha.ckpt when the user installed one,
+  // else the bundled default model (ResourcePath(kBundledModelFile), core/io/resources.h).
   std::string checkpoint;
   // Run the untrained network with random weights when no checkpoint is given (explicit opt-in).
   bool random_weights = false;
@@ -100,7 +104,8 @@ struct SessionOptions {
 
   template <typename V>
   void Visit(V&& v) {
-    v("checkpoint", checkpoint, "Model checkpoint file (default: <data dir>/models/goha.ckpt)");
+    v("checkpoint", checkpoint,
+      "Model checkpoint file (default: <data dir>/models/goha.ckpt if installed, else the bundled model)");
     v("random_weights", random_weights, "Run the untrained network with random weights (no model installed)");
     v("config", config, "Network size with --random-weights: paper, lite or tiny");
     v("seed", seed, "Seed of the random weights");
@@ -129,8 +134,22 @@ struct ModelInfo {
   int64_t parameters = 0;
   int64_t step = 0;
   std::string data_provenance;
+  // Where the weights came from: "bundled", "installed" (<data dir>/models/goha.ckpt),
+  // "checkpoint" (given explicitly) or "random".
+  std::string origin;
+  std::string checkpoint_path;  // "" for random weights
+  bool sr_trained = false;      // false: kFinal upsamples the render instead of the untrained SR
   int image_size = 0, render_size = 0, sr_size = 0;
 };
+
+// One line naming the model for the user, e.g. "bundled neural model ckpt:0123... (config cpu,
+// 804 training steps; super-resolution not trained: upsampled)". Every command that renders
+// with the network prints it.
+std::string DescribeModel(const ModelInfo& info);
+
+// The checkpoint a Session with these options loads ("" for random weights) and its origin
+// (see ModelInfo::origin). Throws MissingData, saying where it looked, when there is none.
+std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin = nullptr);
 
 struct AvatarState;  // defined in session.cc
 

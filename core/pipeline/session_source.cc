@@ -9,9 +9,16 @@
 namespace avatar {
 
 SessionFrameSource::SessionFrameSource(std::shared_ptr<const Session> session, Avatar avatar, bool random_weights,
-                                       const morphable::MorphableModel* model)
-    : session_(std::move(session)), avatar_(std::move(avatar)), random_weights_(random_weights), model_(model) {
+                                       const morphable::MorphableModel* model, SourceOverlay overlay)
+    : session_(std::move(session)),
+      avatar_(std::move(avatar)),
+      random_weights_(random_weights),
+      model_(model),
+      overlay_(std::move(overlay)) {
   AVATAR_CHECK_INPUT(session_ != nullptr && avatar_.valid()) << "the neural source needs a session and an avatar";
+  const ModelInfo info = session_->Info();
+  label_ = random_weights_ ? std::string(kRandomWeightsLabel) : "Neural avatar: " + DescribeModel(info);
+  sr_trained_ = info.sr_trained;
   const auto label = avatar_.SourceCamera();
   morphable::CameraLabel camera;
   std::copy(label.begin(), label.end(), camera.begin());
@@ -20,7 +27,7 @@ SessionFrameSource::SessionFrameSource(std::shared_ptr<const Session> session, A
   source_pose_ = PoseFromRotation(front.world_to_cam.t() * source.world_to_cam);
 }
 
-std::string SessionFrameSource::Label() const { return random_weights_ ? kRandomWeightsLabel : "Neural avatar"; }
+std::string SessionFrameSource::Label() const { return label_; }
 
 View SessionFrameSource::ToView(const ViewPose& pose) {
   // Turning the head towards the image's left is the camera orbiting to the subject's left
@@ -45,10 +52,14 @@ RenderedFrame SessionFrameSource::Render(const FrameRequest& request, RunContext
   for (const auto& [name, value] : request.expression.controls) {
     if (value != 0.0f) expression.controls[name] = std::clamp(expression.controls[name] + value, 0.0f, 1.0f);
   }
-  const Frame frame = session_->Animate(avatar_, expression, ToView(request.view), Preset::kStandard, &ctx);
+  // A trained super-resolution serves every frame larger than the render; otherwise the render
+  // is scaled to the request here.
+  const Preset preset = sr_trained_ ? Preset::kFinal : Preset::kStandard;
+  const Frame frame = session_->Animate(avatar_, expression, ToView(request.view), preset, &ctx);
   RenderedFrame out;
   const cv::Size size(request.width, request.height);
-  cv::resize(frame.bgr, out.bgr, size, 0, 0, cv::INTER_LINEAR);
+  const bool enlarging = size.width > frame.bgr.cols || size.height > frame.bgr.rows;
+  cv::resize(frame.bgr, out.bgr, size, 0, 0, enlarging ? cv::INTER_CUBIC : cv::INTER_AREA);
   cv::Mat alpha;
   cv::resize(frame.opacity, alpha, size, 0, 0, cv::INTER_LINEAR);
   alpha.convertTo(out.alpha, CV_8UC1, 255.0);

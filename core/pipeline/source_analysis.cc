@@ -1,12 +1,36 @@
 #include "core/pipeline/source_analysis.h"
 
+#include <opencv2/imgproc.hpp>
+
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
-#include "core/morphable/morphable.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/util/error.h"
 
 namespace avatar {
+namespace {
+
+cv::Point2f ToImage(const cv::Matx23d& crop_from_image, const cv::Point2f& p) {
+  cv::Mat inverse;
+  cv::invertAffineTransform(cv::Mat(crop_from_image), inverse);
+  const cv::Matx23d m(inverse);
+  return {static_cast<float>(m(0, 0) * p.x + m(0, 1) * p.y + m(0, 2)),
+          static_cast<float>(m(1, 0) * p.x + m(1, 1) * p.y + m(1, 2))};
+}
+
+SourceOverlay OverlayOf(const face::PortraitReport& report, const face::AlignedPortrait& aligned) {
+  SourceOverlay overlay;
+  for (const auto& d : report.faces) overlay.faces.push_back(d.box);
+  for (const auto& p : report.image_landmarks.points) overlay.landmarks.emplace_back(p.x, p.y);
+  if (overlay.landmarks.empty()) {
+    for (const auto& p : aligned.landmarks.points) {
+      overlay.landmarks.push_back(ToImage(aligned.crop_from_image, cv::Point2f(p.x, p.y)));
+    }
+  }
+  return overlay;
+}
+
+}  // namespace
 
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, RunContext& ctx) {
   AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "the portrait must be a non-empty 8-bit BGR image";
@@ -16,16 +40,19 @@ SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, Ru
     ctx.Report("analyse face", 0.0, "loading face models");
     face::FaceAnalyzerOptions options;
     options.data_dir = data_dir;
-    out.portrait = face::SharedFaceAnalyzer(options).AnalyzePortrait(bgr, ctx);
+    options.embedding = false;  // reconstruction does not use the identity embedding
+    face::PortraitReport report;
+    out.portrait = face::SharedFaceAnalyzer(options).AnalyzePortrait(bgr, ctx, &report);
+    out.overlay = OverlayOf(report, out.portrait);
   }
   ctx.Report("fit morphable model", 0.8);
-  const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));
-  morphable::FitResult fit = morphable::Fit(model, out.portrait.landmarks, out.portrait.image.size());
+  out.model = &morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));
+  out.morphable_fit = morphable::Fit(*out.model, out.portrait.landmarks, out.portrait.image.size());
   ctx.ThrowIfCancelled();
   ctx.Report("fit morphable model", 0.9, "sampling the face texture");
-  morphable::Texture texture = morphable::SampleTexture(model, fit, out.portrait.image_unmatted);
-  out.fit.camera = fit.camera;
-  out.fit.expressions = std::make_shared<MorphableExpressionSource>(model, std::move(fit), std::move(texture));
+  out.texture = morphable::SampleTexture(*out.model, out.morphable_fit, out.portrait.image_unmatted);
+  out.fit.camera = out.morphable_fit.camera;
+  out.fit.expressions = std::make_shared<MorphableExpressionSource>(*out.model, out.morphable_fit, out.texture);
   ctx.Report("fit morphable model", 1.0);
   return out;
 }

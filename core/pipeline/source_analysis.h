@@ -1,12 +1,18 @@
 #pragma once
-// Source analysis for Session::Reconstruct: face analysis (aligned 512 crop, matte, eye/mouth
-// mask, landmarks) and the morphable fit (source camera, expression renderer).
+// The one analysis of a portrait, computed once and used by every renderer: face analysis
+// (aligned 512 crop, matte, eye/mouth mask, landmarks), the morphable fit and its texture, the
+// network's inputs (source camera, expression renderer) and the overlay the source panel draws.
+// The neural session (Session::ReconstructFromAnalysis), the morphable preview and `fit` all
+// start from it.
 
+#include <memory>
 #include <string>
 
 #include <opencv2/core.hpp>
 
 #include "core/face/face_types.h"
+#include "core/morphable/morphable.h"
+#include "core/pipeline/frame_source.h"
 #include "core/pipeline/session.h"
 #include "core/util/run_context.h"
 
@@ -14,7 +20,11 @@ namespace avatar {
 
 struct SourceAnalysis {
   face::AlignedPortrait portrait;
-  SourceFit fit;
+  SourceFit fit;                                   // network inputs (camera C_s, I_exp renderer)
+  const morphable::MorphableModel* model = nullptr;  // the default morphable model (process lifetime)
+  morphable::FitResult morphable_fit;              // fit to portrait.landmarks in the 512 crop
+  morphable::Texture texture;                      // sampled from the unmatted crop
+  SourceOverlay overlay;                           // detections and landmarks in portrait pixels
 };
 
 // Analyses a BGR photo. `data_dir` as in SessionOptions. Throws InvalidInput (no face),

@@ -11,27 +11,20 @@
 #include "core/pipeline/morphable_preview.h"
 #include "core/pipeline/session.h"
 #include "core/pipeline/session_source.h"
+#include "core/pipeline/source_analysis.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 
 namespace avatar {
 namespace {
 
-// The preview textures the unmatted crop and needs no identity: skip both networks.
+// Driving frames need landmarks only: no matte, no identity embedding.
 const face::FaceAnalyzer& SharedAnalyzer(const std::string& data_dir) {
   face::FaceAnalyzerOptions options;
   options.data_dir = data_dir;
   options.matte = false;
   options.embedding = false;
   return face::SharedFaceAnalyzer(options);
-}
-
-cv::Point2f ToImage(const cv::Matx23d& crop_from_image, const cv::Point2f& p) {
-  cv::Mat inverse;
-  cv::invertAffineTransform(cv::Mat(crop_from_image), inverse);
-  const cv::Matx23d m(inverse);
-  return {static_cast<float>(m(0, 0) * p.x + m(0, 1) * p.y + m(0, 2)),
-          static_cast<float>(m(1, 0) * p.x + m(1, 1) * p.y + m(1, 2))};
 }
 
 // Driving frames: the face tracker follows the main face, the morphable model is fitted to
@@ -62,25 +55,45 @@ class TrackingAnalyzer : public FrameAnalyzer {
   MorphableFrameAnalyzer fitter_;
 };
 
-// One random-weight session per configuration and data folder (building it is the slow part).
-std::shared_ptr<const Session> SharedRandomSession(const BackendOptions& options) {
-  static std::mutex mutex;
-  static std::map<std::string, std::shared_ptr<const Session>> sessions;
-  std::lock_guard<std::mutex> lock(mutex);
-  auto& slot = sessions[options.preset + "|" + options.data_dir];
-  if (!slot) {
-    SessionOptions so;
-    so.random_weights = true;  // Explicit opt-in by the user; every frame is labelled.
-    so.config = options.preset;
-    so.data_dir = options.data_dir;
-    slot = std::make_shared<const Session>(so);
+std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analysis, const std::string& label) {
+  return std::make_shared<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture,
+                                                  analysis.overlay, label);
+}
+
+std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, const BackendOptions& options,
+                                                std::shared_ptr<const Session> session, RunContext& ctx) {
+  ctx.Report("reconstruct the neural avatar", 0.7);
+  Avatar avatar;
+  {
+    RunContext::ProgressRange range(ctx, 0.7, 1.0);
+    avatar = session->ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
   }
-  return slot;
+  return std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
+                                              analysis.model, analysis.overlay);
 }
 
 }  // namespace
 
+std::shared_ptr<const Session> SharedSession(const BackendOptions& options) {
+  static std::mutex mutex;
+  static std::map<std::string, std::shared_ptr<const Session>> sessions;
+  SessionOptions so;
+  so.checkpoint = options.checkpoint;
+  so.random_weights = options.random_weights && options.checkpoint.empty();
+  so.config = options.preset;
+  so.data_dir = options.data_dir;
+  std::string origin;
+  const std::string key = ResolveCheckpoint(so, &origin).string() + "|" + origin + "|" + options.preset + "|" +
+                          options.data_dir;
+  std::lock_guard<std::mutex> lock(mutex);
+  auto& slot = sessions[key];
+  if (!slot) slot = std::make_shared<const Session>(so);
+  return slot;
+}
+
 void BackendOptions::Validate() const {
+  AVATAR_CHECK_OPTION(renderer == "neural" || renderer == "morphable")
+      << "--renderer must be neural or morphable, got '" << renderer << "'";
   AVATAR_CHECK_OPTION(preset == "lite" || preset == "paper")
       << "--preset must be lite or paper, got '" << preset << "'";
 }
@@ -89,43 +102,40 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
                                                      RunContext& ctx) {
   options.Validate();
   AVATAR_CHECK_INPUT(!portrait.empty() && portrait.type() == CV_8UC3) << "the portrait must be a BGR8 image";
-  if (options.random_weights) {
-    ctx.Report("build the network (random weights)", 0.0);
-    std::shared_ptr<const Session> session = SharedRandomSession(options);
-    ctx.ThrowIfCancelled();
-    Avatar avatar;
-    {
-      RunContext::ProgressRange range(ctx, 0.1, 1.0);
-      avatar = session->Reconstruct(portrait, ctx);
+  // The model first (a bad --checkpoint fails before the slow analysis), then one analysis of the
+  // portrait for whichever renderer shows it.
+  std::shared_ptr<const Session> session;
+  std::string preview_reason;
+  if (options.renderer == "morphable" && !options.random_weights) {
+    preview_reason = "chosen instead of the neural avatar";
+  } else if (options.random_weights || !options.checkpoint.empty()) {
+    // A model the user named (or random weights) must load: no silent fallback.
+    ctx.Report(options.random_weights ? "build the network (random weights)" : "load the neural model", 0.0);
+    session = SharedSession(options);
+  } else {
+    ctx.Report("load the neural model", 0.0);
+    try {
+      session = SharedSession(options);
+    } catch (const MissingData& e) {
+      preview_reason = std::string("neural model unavailable: ") + e.what();
+    } catch (const ModelLoad& e) {
+      preview_reason = std::string("neural model unavailable: ") + e.what();
     }
-    const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(options.data_dir));
-    return std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), true, &model);
+    if (!session) {
+      AVATAR_LOG(kWarning) << "showing the morphable preview: " << preview_reason;
+    }
   }
-  ctx.Report("load models", 0.0);
-  const DataPaths paths = DataPaths::Resolve(options.data_dir);
-  const morphable::MorphableModel& model = morphable::LoadDefaultModel(paths);
-  const face::FaceAnalyzer& analyzer = SharedAnalyzer(options.data_dir);
   ctx.ThrowIfCancelled();
-  face::PortraitReport report;
-  face::AlignedPortrait aligned;
+  SourceAnalysis analysis;
   {
-    RunContext::ProgressRange range(ctx, 0.1, 0.7);
-    aligned = analyzer.AnalyzePortrait(portrait, ctx, &report);
+    RunContext::ProgressRange range(ctx, 0.1, session ? 0.7 : 1.0);
+    analysis = AnalyseSource(portrait, options.data_dir, ctx);
   }
-  ctx.Report("fit morphable model", 0.7);
-  const morphable::FitResult fit = morphable::Fit(model, aligned.landmarks, aligned.image_unmatted.size());
-  ctx.Report("sample texture", 0.9);
-  morphable::Texture texture = morphable::SampleTexture(model, fit, aligned.image_unmatted);
-  SourceOverlay overlay;
-  for (const auto& d : report.faces) overlay.faces.push_back(d.box);
-  for (const auto& p : report.image_landmarks.points) overlay.landmarks.emplace_back(p.x, p.y);
-  if (overlay.landmarks.empty()) {
-    for (const auto& p : aligned.landmarks.points) {
-      overlay.landmarks.push_back(ToImage(aligned.crop_from_image, cv::Point2f(p.x, p.y)));
-    }
+  if (!session) {
+    ctx.Report("done", 1.0);
+    return MorphablePreview(analysis, std::string(kMorphablePreviewLabel) + " (" + preview_reason + ")");
   }
-  ctx.Report("done", 1.0);
-  return std::make_shared<MorphablePreviewSource>(model, fit, std::move(texture), std::move(overlay));
+  return NeuralAvatar(analysis, options, std::move(session), ctx);
 }
 
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {
@@ -140,8 +150,20 @@ FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {
 
 std::string BackendStatement(const BackendOptions& options) {
   if (options.random_weights) return "The neural network runs with RANDOM weights: the frames are not a result.";
-  return "The neural model is not trained yet: the frames show the textured morphable-model face fitted to the "
-         "portrait (a preview).";
+  if (options.renderer == "morphable") {
+    return "Renderer: the morphable-model preview (textured face mask; no hair or ears), as chosen.";
+  }
+  SessionOptions so;
+  so.checkpoint = options.checkpoint;
+  so.data_dir = options.data_dir;
+  try {
+    std::string origin;
+    const std::filesystem::path path = ResolveCheckpoint(so, &origin);
+    return "Renderer: the " + std::string(origin == "bundled" ? "bundled " : "") + "neural avatar model '" +
+           path.filename().string() + "'.";
+  } catch (const MissingData& e) {
+    return std::string("Renderer: the morphable-model preview, because no neural model was found: ") + e.what();
+  }
 }
 
 }  // namespace avatar

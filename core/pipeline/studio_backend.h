@@ -1,10 +1,11 @@
 #pragma once
 // The one place that decides what renders the head for a portrait, shared by the studio
-// and the command line. The choice is honest:
-//  - the neural session only when trained weights exist, or when the user explicitly asks
-//    for random weights (labelled "random weights, not a result");
-//  - otherwise the textured morphable-model preview, labelled as a preview;
-//  - without face analysis / the morphable model in this build: the portrait itself.
+// and the command line. The choice is honest and every frame source says what it is:
+//  - renderer "neural" (the default): the neural avatar of the trained model (the bundled
+//    default, the user's installed one or --checkpoint), labelled with DescribeModel();
+//  - random weights only on explicit request (labelled "random weights, not a result");
+//  - renderer "morphable", or a default model that cannot be loaded: the textured
+//    morphable-model preview, labelled as a preview with the reason.
 
 #include <memory>
 #include <string>
@@ -13,12 +14,19 @@
 
 #include "core/pipeline/driving.h"
 #include "core/pipeline/frame_source.h"
+#include "core/pipeline/session.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
 
 struct BackendOptions {
-  // Network configuration: "lite" (fast, CPU-sized) or "paper".
+  // What renders the head: "neural" (the trained GOHA model) or "morphable" (the preview).
+  std::string renderer = "neural";
+  // Model checkpoint for the neural renderer ("" = installed or bundled default, see
+  // SessionOptions::checkpoint). An explicit checkpoint that fails to load is an error, never
+  // a silent fallback to the preview.
+  std::string checkpoint;
+  // Network configuration of --random-weights: "lite" (fast, CPU-sized) or "paper".
   std::string preset = "lite";
   // Use the neural network with random weights (a plumbing check, never a result).
   bool random_weights = false;
@@ -27,7 +35,10 @@ struct BackendOptions {
 
   template <typename V>
   void Visit(V&& v) {
-    v("preset", preset, "Network configuration: lite or paper");
+    v("renderer", renderer, "What renders the head: neural (the trained model) or morphable (the preview)");
+    v("checkpoint", checkpoint,
+      "Neural model checkpoint (default: <data dir>/models/goha.ckpt if installed, else the bundled model)");
+    v("preset", preset, "Network configuration of --random-weights: lite or paper");
     v("random_weights", random_weights,
       "Render with the untrained network's random weights (plumbing check; not a result)");
   }
@@ -44,7 +55,12 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
 // null when this build cannot measure driving frames.
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options);
 
-// A short sentence for the user about what renders the frames today.
+// A short sentence for the user about what will render the frames (before a portrait is
+// loaded; the frame source's Label() is the final word).
 std::string BackendStatement(const BackendOptions& options);
+
+// The neural session these options select, shared per checkpoint and data folder (loading it is
+// the slow part). Throws MissingData / ModelLoad as Session does.
+std::shared_ptr<const Session> SharedSession(const BackendOptions& options);
 
 }  // namespace avatar

@@ -7,8 +7,10 @@
 #include <iostream>
 #include <sstream>
 
+#include "core/io/atomic_file.h"
 #include "core/model/checkpoint.h"
 #include "core/render/camera.h"
+#include "core/train/gan.h"
 #include "core/util/error.h"
 #include "core/util/options.h"
 #include "core/util/timer.h"
@@ -39,6 +41,72 @@ at::Generator DefaultGenerator(const torch::Device& device) {
   return at::globalContext().defaultGenerator(device.is_cpu() ? torch::Device(torch::kCPU) : device);
 }
 
+// Global L2 norm of the gradients (float64), or NaN when one is not finite.
+double GradNorm(const std::vector<torch::Tensor>& params, const torch::Device& device) {
+  torch::Tensor sq = torch::zeros({}, torch::TensorOptions().dtype(torch::kFloat64).device(device));
+  for (const auto& p : params)
+    if (p.grad().defined()) sq += p.grad().to(torch::kFloat64).pow(2).sum();
+  return std::sqrt(sq.item<double>());
+}
+
+// One Adam update (see the header comment) of the parameters with gradients, clipped to `clip`.
+void AdamUpdate(const std::vector<torch::Tensor>& params, std::vector<torch::Tensor>& exp_avg,
+                std::vector<torch::Tensor>& exp_avg_sq, std::vector<int64_t>& steps, double grad_norm, double clip,
+                double lr, double b1, double b2, double eps) {
+  torch::NoGradGuard no_grad;
+  const double scale = (clip > 0 && grad_norm > clip) ? clip / (grad_norm + 1e-6) : 1.0;
+  for (size_t i = 0; i < params.size(); ++i) {
+    torch::Tensor g = params[i].grad();
+    if (!g.defined()) continue;
+    if (scale != 1.0) g = g * scale;
+    if (!exp_avg[i].defined()) {
+      exp_avg[i] = torch::zeros_like(params[i]);
+      exp_avg_sq[i] = torch::zeros_like(params[i]);
+    }
+    const int64_t t = ++steps[i];
+    exp_avg[i].mul_(b1).add_(g, 1.0 - b1);
+    exp_avg_sq[i].mul_(b2).addcmul_(g, g, 1.0 - b2);
+    const double bc1 = 1.0 - std::pow(b1, static_cast<double>(t));
+    const double bc2 = 1.0 - std::pow(b2, static_cast<double>(t));
+    const torch::Tensor denom = (exp_avg_sq[i].sqrt() / std::sqrt(bc2)).add_(eps);
+    params[i].addcdiv_(exp_avg[i], denom, -lr / bc1);
+  }
+}
+
+void ClearGrads(std::vector<torch::Tensor>& params) {
+  for (auto& p : params) p.mutable_grad() = torch::Tensor();
+}
+
+void SetRequiresGrad(std::vector<torch::Tensor>& params, bool on) {
+  for (auto& p : params) p.requires_grad_(on);
+}
+
+// Replaces the SR's noise maps with fresh N(0,1) draws and puts the fixed ones back when it
+// goes out of scope (after the backward pass that used them).
+class RandomNoiseScope {
+ public:
+  RandomNoiseScope(GohaModel& model, bool on) {
+    if (!on) return;
+    torch::NoGradGuard no_grad;
+    for (auto& item : model->super_resolution->named_buffers(true)) {
+      const std::string& key = item.key();
+      if (key.size() < 5 || key.compare(key.size() - 5, 5, "noise") != 0) continue;
+      torch::Tensor buffer = item.value();
+      saved_.emplace_back(buffer, buffer.clone());
+      buffer.copy_(torch::randn_like(buffer));
+    }
+  }
+  ~RandomNoiseScope() {
+    torch::NoGradGuard no_grad;
+    for (auto& [buffer, fixed] : saved_) buffer.copy_(fixed);
+  }
+  RandomNoiseScope(const RandomNoiseScope&) = delete;
+  RandomNoiseScope& operator=(const RandomNoiseScope&) = delete;
+
+ private:
+  std::vector<std::pair<torch::Tensor, torch::Tensor>> saved_;
+};
+
 }  // namespace
 
 void TrainerOptions::Validate() const {
@@ -51,6 +119,11 @@ void TrainerOptions::Validate() const {
       << "curriculum: 0 <= expression_start <= appearance_start";
   AVATAR_CHECK_OPTION(max_bad_steps >= 1) << "max_bad_steps must be >= 1";
   AVATAR_CHECK_OPTION(seed >= 0) << "seed must be >= 0";
+  AVATAR_CHECK_OPTION(stage == 1 || stage == 2) << "stage must be 1 or 2";
+  AVATAR_CHECK_OPTION(gan_weight >= 0 && std::isfinite(gan_weight)) << "gan_weight must be >= 0";
+  AVATAR_CHECK_OPTION(r1_gamma >= 0 && std::isfinite(r1_gamma)) << "r1_gamma must be >= 0";
+  AVATAR_CHECK_OPTION(r1_every >= 1) << "r1_every must be >= 1";
+  AVATAR_CHECK_OPTION(d_lr > 0 && std::isfinite(d_lr)) << "d_lr must be > 0";
   try {
     (void)torch::Device(device);
   } catch (const std::exception&) {
@@ -70,23 +143,73 @@ StageOneTrainer::StageOneTrainer(GohaModel model, const TrainerOptions& options,
   AVATAR_CHECK_INPUT(!model_.is_empty()) << "StageOneTrainer: no model";
   device_ = torch::Device(options_.device);
   model_->to(device_);
+  // Stage II optimises the super-resolution module only.
   for (const auto& item : model_->named_parameters(true)) {
+    if (options_.stage == 2 && item.key().rfind("super_resolution.", 0) != 0) continue;
     names_.push_back(item.key());
     params_.push_back(item.value());
   }
+  AVATAR_CHECK(!params_.empty()) << "StageOneTrainer: no parameters to train";
   exp_avg_.resize(params_.size());
   exp_avg_sq_.resize(params_.size());
   param_steps_.assign(params_.size(), 0);
   torch::manual_seed(static_cast<uint64_t>(options_.seed));
+  if (options_.stage == 2) {
+    disc_ = DualDiscriminator(model_->config());
+    disc_->to(device_);
+    disc_->train();
+    for (const auto& item : disc_->named_parameters(true)) {
+      d_names_.push_back(item.key());
+      d_params_.push_back(item.value());
+    }
+    d_exp_avg_.resize(d_params_.size());
+    d_exp_avg_sq_.resize(d_params_.size());
+    d_param_steps_.assign(d_params_.size(), 0);
+  }
+}
+
+void StageOneTrainer::InitFromCheckpoint(const fs::path& path) {
+  const LoadedModel loaded = LoadModelCheckpoint(path);
+  const ModelConfig& stored = loaded.model->config();
+  if (stored != model_->config()) {
+    const nlohmann::json a = nlohmann::json::parse(ModelConfigToJson(stored));
+    const nlohmann::json b = nlohmann::json::parse(ModelConfigToJson(model_->config()));
+    std::string differ;
+    for (auto it = a.begin(); it != a.end(); ++it)
+      if (!b.contains(it.key()) || b.at(it.key()) != it.value()) differ += (differ.empty() ? "" : ", ") + it.key();
+    throw InvalidOptions(path.string() + ": the checkpoint is of model config '" + stored.name +
+                         "', not of the model being trained ('" + model_->config().name + "'; fields that differ: " +
+                         differ + "); train with the checkpoint's config");
+  }
+  torch::NoGradGuard no_grad;
+  GohaModel source = loaded.model;
+  const auto src_params = source->named_parameters(true);
+  const auto src_buffers = source->named_buffers(true);
+  for (auto& item : model_->named_parameters(true)) {
+    const torch::Tensor* src = src_params.find(item.key());
+    if (src == nullptr || src->sizes() != item.value().sizes())
+      throw ModelLoad(path.string() + ": tensor '" + item.key() + "' does not match the model");
+    item.value().copy_(*src);
+  }
+  for (auto& item : model_->named_buffers(true)) {
+    const torch::Tensor* src = src_buffers.find(item.key());
+    if (src == nullptr || src->sizes() != item.value().sizes())
+      throw ModelLoad(path.string() + ": tensor '" + item.key() + "' does not match the model");
+    item.value().copy_(*src);
+  }
+  step_ = loaded.info.step;
+  sr_trained_before_ = loaded.info.sr_trained;
 }
 
 std::string StageOneTrainer::PhaseAt(int64_t step) const {
+  if (options_.stage == 2) return "super_resolution";
   if (step < options_.expression_start) return "canonical";
   if (step < options_.appearance_start) return "expression";
   return "appearance";
 }
 
 StepResult StageOneTrainer::Step(const TrainBatch& batch) {
+  if (options_.stage == 2) return StepStageTwo(batch);
   Timer timer;
   StepResult r;
   r.step = step_;
@@ -160,35 +283,13 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   if (!ok) r.skip_reason = "non-finite loss";
   if (ok) {
     total.backward();
-    torch::NoGradGuard no_grad;
-    torch::Tensor sq = torch::zeros({}, torch::TensorOptions().dtype(torch::kFloat64).device(device_));
-    for (const auto& p : params_)
-      if (p.grad().defined()) sq += p.grad().to(torch::kFloat64).pow(2).sum();
-    r.grad_norm = std::sqrt(sq.item<double>());
+    r.grad_norm = GradNorm(params_, device_);
     ok = std::isfinite(r.grad_norm);
     if (!ok) r.skip_reason = "non-finite gradient";
   }
   if (ok) {
-    torch::NoGradGuard no_grad;
-    const double scale =
-        (options_.grad_clip > 0 && r.grad_norm > options_.grad_clip) ? options_.grad_clip / (r.grad_norm + 1e-6) : 1.0;
-    const double b1 = options_.beta1, b2 = options_.beta2;
-    for (size_t i = 0; i < params_.size(); ++i) {
-      torch::Tensor g = params_[i].grad();
-      if (!g.defined()) continue;
-      if (scale != 1.0) g = g * scale;
-      if (!exp_avg_[i].defined()) {
-        exp_avg_[i] = torch::zeros_like(params_[i]);
-        exp_avg_sq_[i] = torch::zeros_like(params_[i]);
-      }
-      const int64_t t = ++param_steps_[i];
-      exp_avg_[i].mul_(b1).add_(g, 1.0 - b1);
-      exp_avg_sq_[i].mul_(b2).addcmul_(g, g, 1.0 - b2);
-      const double bc1 = 1.0 - std::pow(b1, static_cast<double>(t));
-      const double bc2 = 1.0 - std::pow(b2, static_cast<double>(t));
-      const torch::Tensor denom = (exp_avg_sq_[i].sqrt() / std::sqrt(bc2)).add_(options_.eps);
-      params_[i].addcdiv_(exp_avg_[i], denom, -options_.lr / bc1);
-    }
+    AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
+               options_.beta1, options_.beta2, options_.eps);
     bad_in_a_row_ = 0;
   } else {
     r.skipped = true;
@@ -196,6 +297,113 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
     ++bad_in_a_row_;
   }
   for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+  ++step_;
+  r.seconds = timer.Seconds();
+  return r;
+}
+
+StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
+  Timer timer;
+  StepResult r;
+  r.step = step_;
+  r.phase = PhaseAt(step_);
+  AVATAR_CHECK_INPUT(batch.size() >= 1) << "training step on an empty batch";
+  model_->train();
+  disc_->train();
+  const TrainBatch b = batch.To(device_);
+  const ModelConfig& config = model_->config();
+  ClearGrads(params_);
+  ClearGrads(d_params_);
+
+  const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
+  const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
+  const torch::Tensor matted = Matte(b.target, b.target_matte);
+  const torch::Tensor real_low = ResizeTo(matted, config.render_size);
+  const torch::Tensor real_high = ResizeTo(matted, config.sr_size);
+  torch::Tensor low;
+  {
+    // The frozen stage-I network: one render of the full plane sum at the target camera.
+    torch::NoGradGuard no_grad;
+    const torch::Tensor tc = model_->CanonicalPlanes(b.source);
+    const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
+    const torch::Tensor tp =
+        model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+    low = model_->Render(tce + tp, target_cam, 0, false).rgb;
+  }
+
+  // Generator (SR) terms; D's parameters take no gradient from them.
+  std::map<std::string, torch::Tensor> terms;
+  torch::Tensor fake;
+  bool ok = true;
+  {
+    RandomNoiseScope noise(model_, options_.sr_random_noise);
+    fake = model_->SuperResolve(low);
+    terms["sr"] = ImageLoss(fake, real_high, perceptual_, options_.perceptual_weight).mean();
+    if (options_.gan_weight > 0) {
+      SetRequiresGrad(d_params_, false);
+      terms["gan"] = options_.gan_weight * GeneratorGanLoss(disc_->forward(fake, low)).mean();
+      SetRequiresGrad(d_params_, true);
+    }
+    torch::Tensor total;
+    for (const auto& [name, t] : terms) {
+      total = total.defined() ? total + t : t;
+      r.terms[name] = t.item<double>();
+    }
+    r.loss = total.item<double>();
+    ok = std::isfinite(r.loss);
+    if (!ok) r.skip_reason = "non-finite loss";
+    if (ok) {
+      total.backward();
+      r.grad_norm = GradNorm(params_, device_);
+      ok = std::isfinite(r.grad_norm);
+      if (!ok) r.skip_reason = "non-finite gradient";
+    }
+  }
+
+  // Discriminator: fake = (I_hr, I), real = (target at S, target at r); lazy R1 on the real pair.
+  if (ok) {
+    const bool r1 = options_.r1_gamma > 0 && step_ % options_.r1_every == 0;
+    torch::Tensor rh = real_high.detach(), rl = real_low.detach();
+    if (r1) {
+      rh = rh.clone().requires_grad_(true);
+      rl = rl.clone().requires_grad_(true);
+    }
+    const torch::Tensor fake_logits = disc_->forward(fake.detach(), low);
+    const torch::Tensor real_logits = disc_->forward(rh, rl);
+    const torch::Tensor d_gan = DiscriminatorGanLoss(real_logits, fake_logits).mean();
+    torch::Tensor d_total = d_gan;
+    r.d_terms["d"] = d_gan.item<double>();
+    r.d_terms["real_logit"] = real_logits.mean().item<double>();
+    r.d_terms["fake_logit"] = fake_logits.mean().item<double>();
+    if (r1) {
+      const torch::Tensor penalty = 0.5 * options_.r1_gamma * static_cast<double>(options_.r1_every) *
+                                    R1Penalty(real_logits, {rh, rl}).mean();
+      d_total = d_total + penalty;
+      r.d_terms["r1"] = penalty.item<double>();
+    }
+    r.d_loss = d_total.item<double>();
+    ok = std::isfinite(r.d_loss);
+    if (!ok) r.skip_reason = "non-finite discriminator loss";
+    if (ok) {
+      d_total.backward();
+      r.d_grad_norm = GradNorm(d_params_, device_);
+      ok = std::isfinite(r.d_grad_norm);
+      if (!ok) r.skip_reason = "non-finite discriminator gradient";
+    }
+  }
+  if (ok) {
+    AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
+               options_.beta1, options_.beta2, options_.eps);
+    AdamUpdate(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_, r.d_grad_norm, options_.grad_clip,
+               options_.d_lr, options_.beta1, options_.beta2, options_.eps);
+    bad_in_a_row_ = 0;
+  } else {
+    r.skipped = true;
+    ++skipped_;
+    ++bad_in_a_row_;
+  }
+  ClearGrads(params_);
+  ClearGrads(d_params_);
   ++step_;
   r.seconds = timer.Seconds();
   return r;
@@ -216,6 +424,8 @@ StageOneTrainer::Renders StageOneTrainer::Evaluate(const TrainBatch& batch) {
   out.canonical = model_->Render(tc, target_cam, 0, true).rgb;
   out.expression = model_->Render(tce, target_cam, 0, true).rgb;
   out.full = model_->Render(tce + tp, target_cam, 0, true).rgb;
+  out.source = b.source;
+  if (options_.stage == 2) out.super_resolved = model_->SuperResolve(out.full);
   model_->train();
   return out;
 }
@@ -227,6 +437,8 @@ bool StageOneTrainer::AllFinite() const {
     if (!Finite(item.value())) return false;
   for (size_t i = 0; i < params_.size(); ++i)
     if (!Finite(exp_avg_[i]) || !Finite(exp_avg_sq_[i])) return false;
+  for (size_t i = 0; i < d_params_.size(); ++i)
+    if (!Finite(d_params_[i]) || !Finite(d_exp_avg_[i]) || !Finite(d_exp_avg_sq_[i])) return false;
   return true;
 }
 
@@ -243,6 +455,8 @@ void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source)
                   {"skipped", skipped_},
                   {"bad_in_a_row", bad_in_a_row_},
                   {"param_steps", steps},
+                  {"stage", options_.stage},
+                  {"sr_trained_before", sr_trained_before_},
                   {"data", source != nullptr ? source->State() : nlohmann::json()}};
   for (const auto& item : model_->named_parameters(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
   for (const auto& item : model_->named_buffers(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
@@ -250,6 +464,18 @@ void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source)
     if (!exp_avg_[i].defined()) continue;
     archive.tensors.emplace_back("m/" + names_[i], exp_avg_[i]);
     archive.tensors.emplace_back("v/" + names_[i], exp_avg_sq_[i]);
+  }
+  if (!disc_.is_empty()) {
+    nlohmann::json d_steps = nlohmann::json::array();
+    for (int64_t s : d_param_steps_) d_steps.push_back(s);
+    archive.meta["d_param_steps"] = d_steps;
+    for (const auto& item : disc_->named_parameters(true)) archive.tensors.emplace_back("d/" + item.key(), item.value());
+    for (const auto& item : disc_->named_buffers(true)) archive.tensors.emplace_back("d/" + item.key(), item.value());
+    for (size_t i = 0; i < d_params_.size(); ++i) {
+      if (!d_exp_avg_[i].defined()) continue;
+      archive.tensors.emplace_back("dm/" + d_names_[i], d_exp_avg_[i]);
+      archive.tensors.emplace_back("dv/" + d_names_[i], d_exp_avg_sq_[i]);
+    }
   }
   {
     at::Generator cpu = DefaultGenerator(torch::kCPU);
@@ -272,6 +498,13 @@ void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
     if (stored != model_->config())
       throw ModelLoad(file + ": the training state is of model config '" + stored.name +
                       "', not of the model being trained ('" + model_->config().name + "')");
+    const int64_t stage = archive.meta.value("stage", int64_t{1});
+    if (stage != options_.stage)
+      throw ModelLoad(file + ": the training state is of stage " + std::to_string(stage) + ", not of stage " +
+                      std::to_string(options_.stage) +
+                      (stage == 1 ? std::string(" (to start stage II from stage-I weights, train in a new folder "
+                                                "with --init-weights RUN/model.ckpt)")
+                                  : std::string(" (continue it with --stage 2)")));
     torch::NoGradGuard no_grad;
     auto copy = [&](const std::string& name, torch::Tensor& dst) {
       const torch::Tensor& src = archive.Get(name, file);
@@ -291,6 +524,21 @@ void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
       exp_avg_[i] = archive.Get("m/" + names_[i], file).to(device_).clone();
       exp_avg_sq_[i] = archive.Get("v/" + names_[i], file).to(device_).clone();
     }
+    if (!disc_.is_empty()) {
+      for (auto& item : disc_->named_parameters(true)) copy("d/" + item.key(), item.value());
+      for (auto& item : disc_->named_buffers(true)) copy("d/" + item.key(), item.value());
+      const auto& d_steps = archive.meta.at("d_param_steps");
+      if (d_steps.size() != d_params_.size()) throw ModelLoad(file + ": discriminator state of another model");
+      for (size_t i = 0; i < d_params_.size(); ++i) {
+        d_param_steps_[i] = d_steps[i].get<int64_t>();
+        d_exp_avg_[i] = torch::Tensor();
+        d_exp_avg_sq_[i] = torch::Tensor();
+        if (d_param_steps_[i] == 0) continue;
+        d_exp_avg_[i] = archive.Get("dm/" + d_names_[i], file).to(device_).clone();
+        d_exp_avg_sq_[i] = archive.Get("dv/" + d_names_[i], file).to(device_).clone();
+      }
+    }
+    sr_trained_before_ = archive.meta.value("sr_trained_before", false);
     step_ = archive.meta.at("step").get<int64_t>();
     skipped_ = archive.meta.at("skipped").get<int64_t>();
     bad_in_a_row_ = archive.meta.at("bad_in_a_row").get<int64_t>();
@@ -316,6 +564,7 @@ void StageOneTrainer::ExportWeights(const fs::path& path, const std::string& dat
   CheckpointInfo info;
   info.step = step_;
   info.data_provenance = data_provenance;
+  info.sr_trained = options_.stage == 2 || sr_trained_before_;
   GohaModel model = model_;
   SaveModelCheckpoint(path, model, info, half_precision);
 }
@@ -326,10 +575,80 @@ void RunOptions::Validate() const {
   AVATAR_CHECK_OPTION(hours >= 0 && std::isfinite(hours)) << "--hours must be >= 0";
   AVATAR_CHECK_OPTION(checkpoint_minutes > 0) << "checkpoint_minutes must be > 0";
   AVATAR_CHECK_OPTION(checkpoint_steps >= 0) << "checkpoint_steps must be >= 0";
+  AVATAR_CHECK_OPTION(sample_every >= 0) << "sample_every must be >= 0";
 }
 
 fs::path StatePath(const fs::path& out_dir) { return out_dir / "state.ckpt"; }
 fs::path LogPath(const fs::path& out_dir) { return out_dir / "train.jsonl"; }
+
+int64_t TruncateLog(const fs::path& log, int64_t first_step) {
+  if (!fs::exists(log)) return 0;
+  std::ifstream in(log, std::ios::binary);
+  if (!in) throw Io(log.string() + ": cannot read the training log");
+  std::string kept, line;
+  int64_t dropped = 0;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    bool keep = false;
+    try {
+      const nlohmann::json j = nlohmann::json::parse(line);
+      keep = j.is_object() && (!j.contains("step") || !j.at("step").is_number_integer() ||
+                               j.at("step").get<int64_t>() < first_step);
+    } catch (const nlohmann::json::exception&) {
+      keep = false;  // a line cut short (killed while writing)
+    }
+    if (keep) {
+      kept += line;
+      kept += '\n';
+    } else {
+      ++dropped;
+    }
+  }
+  in.close();
+  if (dropped > 0) WriteBytesAtomically(log, kept);
+  return dropped;
+}
+
+namespace {
+
+// The first `n` pairs of a batch.
+TrainBatch FirstPairs(const TrainBatch& b, int64_t n) {
+  n = std::min(n, b.size());
+  auto head = [n](const torch::Tensor& t) { return t.defined() ? t.narrow(0, 0, n).clone() : t; };
+  TrainBatch out;
+  out.source = head(b.source);
+  out.source_matte = head(b.source_matte);
+  out.source_eye_mouth = head(b.source_eye_mouth);
+  out.source_label = head(b.source_label);
+  out.target = head(b.target);
+  out.target_matte = head(b.target_matte);
+  out.target_label = head(b.target_label);
+  out.expression_image = head(b.expression_image);
+  out.neutral_image = head(b.neutral_image);
+  out.neutral_mask = head(b.neutral_mask);
+  out.target_expression = head(b.target_expression);
+  out.kind = head(b.kind);
+  out.identity = head(b.identity);
+  return out;
+}
+
+// [-1,1] renders -> CPU float in [0,1].
+StageOneTrainer::Renders ForDisplay(const StageOneTrainer::Renders& r) {
+  auto show = [](const torch::Tensor& t) {
+    return t.defined() ? ((t.detach().to(torch::kCPU, torch::kFloat32) + 1.0) * 0.5).clamp(0.0, 1.0).nan_to_num(0.0)
+                       : t;
+  };
+  StageOneTrainer::Renders out;
+  out.target = show(r.target);
+  out.canonical = show(r.canonical);
+  out.expression = show(r.expression);
+  out.full = show(r.full);
+  out.source = show(r.source);
+  out.super_resolved = show(r.super_resolved);
+  return out;
+}
+
+}  // namespace
 
 RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOptions& options, RunContext& ctx) {
   options.Validate();
@@ -337,9 +656,14 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   fs::create_directories(options.out_dir, ec);
   if (ec) throw Io(options.out_dir.string() + ": cannot create the run folder: " + ec.message());
   const fs::path state = StatePath(options.out_dir);
-  if (options.resume && fs::exists(state)) trainer.LoadState(state, &source);
+  if (options.resume && fs::exists(state))
+    trainer.LoadState(state, &source);
+  else if (!options.init_weights.empty())
+    trainer.InitFromCheckpoint(options.init_weights);
   RunResult result;
   result.first_step = trainer.step();
+  // Every step once in the log: drop what was logged at or after the step this run starts at.
+  TruncateLog(LogPath(options.out_dir), result.first_step);
   std::ofstream log(LogPath(options.out_dir), std::ios::app);
   if (!log) throw Io(LogPath(options.out_dir).string() + ": cannot open the training log");
 
@@ -350,6 +674,15 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   auto save = [&] {
     trainer.SaveState(state, &source);
     last_save = Clock::now();
+    if (options.on_state_written) options.on_state_written(trainer.step());
+  };
+  // Sample renders of the first batch this call takes.
+  TrainBatch sample_batch;
+  int64_t last_sampled = -1;
+  auto sample = [&] {
+    if (!options.on_samples || sample_batch.size() == 0 || last_sampled == trainer.step()) return;
+    last_sampled = trainer.step();
+    options.on_samples(trainer.step(), ForDisplay(trainer.Evaluate(sample_batch)));
   };
   double mean_step = 0.0;
   int64_t timed = 0;
@@ -362,6 +695,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       }
       ctx.ThrowIfCancelled();
       const TrainBatch batch = source.Next();
+      if (options.on_samples && sample_batch.size() == 0) sample_batch = FirstPairs(batch, 4);
       const StepResult r = trainer.Step(batch);
       ++timed;
       mean_step += (r.seconds - mean_step) / static_cast<double>(std::min<int64_t>(timed, 20));
@@ -372,6 +706,12 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
                              {"step_s", r.seconds},    {"samples_per_s", samples_per_s},
                              {"batch", batch.size()},  {"skipped", r.skipped},
                              {"skipped_total", trainer.skipped_steps()}};
+      if (trainer.options().stage == 2) {
+        line["d_loss"] = r.d_loss;
+        line["d_terms"] = r.d_terms;
+        line["d_grad_norm"] = r.d_grad_norm;
+        line["d_lr"] = trainer.options().d_lr;
+      }
       if (r.skipped) line["skip_reason"] = r.skip_reason;
       // nlohmann writes non-finite doubles as null, which keeps each line valid JSON.
       log << line.dump() << "\n";
@@ -397,6 +737,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       if (elapsed(last_save) >= options.checkpoint_minutes * 60.0 ||
           (options.checkpoint_steps > 0 && trainer.step() % options.checkpoint_steps == 0))
         save();
+      if (options.sample_every > 0 && trainer.step() % options.sample_every == 0) sample();
       ctx.Report("train", total > 0 ? static_cast<double>(done) / static_cast<double>(total) : 1.0,
                  "step " + std::to_string(trainer.step()));
     }
@@ -406,6 +747,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
     throw;
   }
   if (options.progress) std::cerr << "\n";
+  sample();
   save();
   trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
   trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);

@@ -1,7 +1,8 @@
 #pragma once
-// Stage I of GOHA's training (Li et al. 2023, section 3.4) on one device.
+// GOHA's training (Li et al. 2023, section 3.4) on one device: stage I (every branch, no
+// super-resolution) and stage II (only the super-resolution module, with a dual discriminator).
 //
-// One step, for a batch (I_s, I_exp, I_neu, M_neu, I_t, cameras C_s, C_t):
+// Stage I. One step, for a batch (I_s, I_exp, I_neu, M_neu, I_t, cameras C_s, C_t):
 //   T_c = CanonicalPlanes(I_s); T_e = ExpressionPlanes(I_exp); T_p = AppearancePlanes(I_s, ..., C_s)
 //   I_c = R(T_c, C_t), I_c+e = R(T_c + T_e, C_t), I_c+e+p = R(T_c + T_e + T_p, C_t)
 //   each against the matted target resized to the render size: L1 + perceptual_weight x perceptual;
@@ -16,19 +17,44 @@
 // (after expression_start, step mod 6: 0-1 all renders, 2-3 I_c+e only, 4-5 neutral only) is
 // used; off by default (every step has every active term).
 //
+// Stage II (stage = 2; the paper fine-tunes only the super-resolution module, 75k steps). The
+// stage-I parts are frozen: under NoGradGuard the full sum T_c + T_e + T_p is rendered once at
+// C_t (jittered) -> I (r x r), then I_hr = SR(I) (S x S) with gradients to the SR only. With
+// x_t the matted target at S and x_t,lo the matted target at r:
+//   G (SR):  "sr" = L1 + perceptual_weight x perceptual of I_hr vs x_t (the stage-I image loss
+//            at SR resolution), "gan" = gan_weight (0.1, as the release) x softplus(-D(I_hr, I))
+//   D:       softplus(D(I_hr, I)) + softplus(-D(x_t, x_t,lo)) (core/train/gan.h), and every
+//            r1_every (16) steps the lazy R1 penalty on the real pair: r1_gamma (10) / 2 x
+//            r1_every x |grad D(x_t, x_t,lo)|^2 (gradient w.r.t. both inputs of the dual
+//            discriminator, as EG3D does; the real low-res input is the target at render size).
+//   D is core/model's DualDiscriminator (6 channels: the high-res image and the low-res image
+//   upsampled); its own Adam (d_lr, same betas and eps). G and D gradients are taken from the
+//   same forward pass (D sees the SR output before this step's update) and both optimisers step
+//   only when every loss and gradient is finite. The SR's per-layer noise maps are drawn afresh
+//   (N(0,1), global generator) for each training forward and put back after it, so inference
+//   keeps its fixed maps. D's weights and Adam state are part of the training state; exported
+//   checkpoints of stage II say CheckpointInfo::sr_trained = true.
+//
 // Optimiser: Adam (betas 0, 0.99, lr 1e-4, eps 1e-8) written out here so that its state is plain
 // tensors in the training state; it follows torch::optim::Adam's update (bias-corrected moments, eps
-// added after the square root, no weight decay). Gradients are clipped to a global
-// L2 norm of grad_clip. A step whose loss or gradient is not finite changes nothing and is
-// counted; max_bad_steps such steps in a row stop the run.
+// added after the square root, no weight decay). Lazy R1 keeps the betas as they are (StyleGAN2
+// would rescale them by 16/17). Gradients are clipped to a global L2 norm of grad_clip (G and D
+// separately). A step whose loss or gradient is not finite changes nothing and is counted;
+// max_bad_steps such steps in a row stop the run.
+//
+// Initialisation from weights (InitFromCheckpoint, RunOptions::init_weights): a fresh run takes
+// the model tensors of a model checkpoint (float16 files too) and its step (the curriculum and
+// the log continue); Adam starts afresh. This is how stage II starts from stage-I weights.
 //
 // Training state (TensorArchive kind "goha-train-state"): weights, Adam moments and step
-// counts, the step, the global CPU generator state, the data source's cursor and the counters;
-// written atomically and never when a tensor is not finite. Resuming continues the same run.
+// counts, D and its Adam state (stage II), the stage, the step, the global CPU (and device)
+// generator state, the data source's cursor and the counters; written atomically and never when
+// a tensor is not finite. Resuming continues the same run; a state of the other stage is refused.
 
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -81,6 +107,18 @@ struct TrainerOptions {
   int64_t max_bad_steps = 5;
   // Seed of the global generator at the start of a fresh run.
   int64_t seed = 1;
+  // Training stage: 1 (every branch but the SR) or 2 (only the SR, with the discriminator).
+  int64_t stage = 1;
+  // Stage II: weight of the generator's adversarial term (release: 0.1).
+  double gan_weight = 0.1;
+  // Stage II: R1 weight gamma and its lazy interval (R1 runs when step % r1_every == 0, weighted
+  // gamma / 2 x r1_every); gamma 0 turns it off.
+  double r1_gamma = 10.0;
+  int64_t r1_every = 16;
+  // Stage II: discriminator learning rate (Adam with beta1, beta2, eps as above; paper: 1e-4).
+  double d_lr = 1e-4;
+  // Stage II: fresh random SR noise maps in every training forward (off: the fixed maps).
+  bool sr_random_noise = true;
 
   template <typename V>
   void Visit(V&& v) {
@@ -100,6 +138,12 @@ struct TrainerOptions {
     v("rotation", rotation, "Release's mod-6 rotation of step kinds");
     v("max_bad_steps", max_bad_steps, "Non-finite steps in a row that stop the run");
     v("seed", seed, "Seed of a fresh run");
+    v("stage", stage, "Training stage: 1 or 2 (super-resolution only)");
+    v("gan_weight", gan_weight, "Stage II: weight of the generator's adversarial loss");
+    v("r1_gamma", r1_gamma, "Stage II: R1 penalty gamma (0: off)");
+    v("r1_every", r1_every, "Stage II: lazy R1 interval in steps");
+    v("d_lr", d_lr, "Stage II: discriminator learning rate");
+    v("sr_random_noise", sr_random_noise, "Stage II: random SR noise maps while training");
   }
   // Throws InvalidOptions.
   void Validate() const;
@@ -113,10 +157,15 @@ struct StepResult {
   std::map<std::string, double> terms;   // weighted batch-mean loss terms
   double loss = 0.0;                     // their sum
   double grad_norm = 0.0;                // before clipping
+  // Stage II: the discriminator's terms ("d": GAN loss, "r1": weighted R1 when it ran; plus the
+  // batch-mean logits "real_logit" and "fake_logit", not losses), its loss and gradient norm.
+  std::map<std::string, double> d_terms;
+  double d_loss = 0.0;
+  double d_grad_norm = 0.0;
   bool skipped = false;                  // non-finite loss or gradient: nothing changed
   std::string skip_reason;
   double seconds = 0.0;
-  std::string phase;                     // canonical, expression, appearance
+  std::string phase;                     // canonical, expression, appearance, super_resolution
 };
 
 class StageOneTrainer {
@@ -127,11 +176,18 @@ class StageOneTrainer {
   // One optimiser step on `batch`. A non-finite step is counted (bad_in_a_row); RunTraining stops on it.
   StepResult Step(const TrainBatch& batch);
 
-  // Deterministic renders (no gradient) of the three plane sums at the target camera.
+  // Deterministic renders (no gradient) of the three plane sums at the target camera, in [-1,1].
   struct Renders {
     torch::Tensor target, canonical, expression, full;  // [B,3,R,R]
+    torch::Tensor source;                               // I_s [B,3,S,S] as given
+    torch::Tensor super_resolved;                       // stage II: SR(full) [B,3,sr,sr] (fixed noise)
   };
   Renders Evaluate(const TrainBatch& batch);
+
+  // Fresh-run initialisation from a model checkpoint: every model tensor and the step (see the
+  // header comment). Throws Io / ModelLoad (unreadable file) or InvalidOptions when its model
+  // config is not the one being trained.
+  void InitFromCheckpoint(const std::filesystem::path& path);
 
   // State files (see the header comment). Save throws InvalidInput on a non-finite tensor (and
   // writes nothing); Load throws Io / ModelLoad and checks that the model config matches.
@@ -143,6 +199,8 @@ class StageOneTrainer {
                      bool half_precision = false) const;
 
   GohaModel& model() { return model_; }
+  // Stage II's discriminator (empty in stage I).
+  DualDiscriminator& discriminator() { return disc_; }
   const TrainerOptions& options() const { return options_; }
   const torch::Device& device() const { return device_; }
   int64_t step() const { return step_; }
@@ -152,9 +210,16 @@ class StageOneTrainer {
 
  private:
   bool AllFinite() const;
+  StepResult StepStageTwo(const TrainBatch& batch);
   TrainerOptions options_;
   torch::Device device_;
   GohaModel model_;
+  DualDiscriminator disc_{nullptr};
+  std::vector<std::string> d_names_;
+  std::vector<torch::Tensor> d_params_, d_exp_avg_, d_exp_avg_sq_;
+  std::vector<int64_t> d_param_steps_;
+  // The SR was trained before this run (initialised from such a checkpoint).
+  bool sr_trained_before_ = false;
   PerceptualFn perceptual_;
   std::vector<std::string> names_;
   std::vector<torch::Tensor> params_;
@@ -165,9 +230,13 @@ class StageOneTrainer {
   int64_t bad_in_a_row_ = 0;
 };
 
-// A whole run in a folder RUN: RUN/state.ckpt (training state), RUN/model.ckpt (weights at the
-// end), RUN/train.jsonl (one JSON object per step: losses, lr, step_s, samples_per_s, ...),
-// and a one-line progress display with ETA on stderr.
+// A whole run in a folder RUN: RUN/state.ckpt (training state), RUN/model.ckpt and
+// RUN/model-fp16.ckpt (weights at the end), RUN/train.jsonl (one JSON object per step: losses,
+// lr, step_s, samples_per_s, ...; stage II adds d_loss, d_terms, d_grad_norm), and a one-line
+// progress display with ETA on stderr. Every step appears once in the log: at the start, lines
+// whose step is >= the run's first step (logged after the state being resumed was written, or
+// by an earlier run in the folder) and unreadable lines (a line cut by a kill) are dropped, the
+// log rewritten atomically, and new lines appended.
 struct RunOptions {
   std::filesystem::path out_dir;
   // Train until this step (absolute).
@@ -184,6 +253,16 @@ struct RunOptions {
   bool progress = true;
   // What the weights are trained on (stored in model.ckpt).
   std::string data_provenance = "unknown";
+  // A fresh run (no state resumed) starts from this model checkpoint (StageOneTrainer::
+  // InitFromCheckpoint); empty = the trainer's own initialisation.
+  std::filesystem::path init_weights;
+  // Sample renders every this many steps (after the step; 0 = off) and after the last step:
+  // on_samples(step, renders) gets Evaluate's renders of the first batch this call took (up to
+  // four pairs), on the CPU, float, mapped to [0,1] and clamped.
+  int64_t sample_every = 0;
+  std::function<void(int64_t step, const StageOneTrainer::Renders& samples)> on_samples;
+  // Called after each state write with the state's step (e.g. to redraw a loss curve).
+  std::function<void(int64_t step)> on_state_written;
   void Validate() const;
 };
 
@@ -201,5 +280,9 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
 // The state file and log in a run folder.
 std::filesystem::path StatePath(const std::filesystem::path& out_dir);
 std::filesystem::path LogPath(const std::filesystem::path& out_dir);
+// Drops the lines of a JSONL training log whose "step" is >= first_step and unreadable lines,
+// rewriting the file atomically when anything is dropped. A missing file is left missing.
+// Returns the number of lines dropped.
+int64_t TruncateLog(const std::filesystem::path& log, int64_t first_step);
 
 }  // namespace avatar::train

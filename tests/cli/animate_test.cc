@@ -90,8 +90,9 @@ TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
       Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() + "' --width 96 --height 96");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("Wrote 30 frames at 15 fps"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("not trained"), std::string::npos) << "the command must say the model is not trained\n" << r.out;
-  EXPECT_NE(r.out.find("Preview: morphable model"), std::string::npos) << r.out;
+  // The bundled neural model renders by default, and the output says which model it was.
+  EXPECT_NE(r.out.find("Renderer: the bundled neural avatar model"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("Frames rendered by: Neural avatar: bundled neural model ckpt:"), std::string::npos) << r.out;
   EXPECT_EQ(r.out.find("timing and audio only"), std::string::npos) << "the driver was not measured\n" << r.out;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,15/1,30"), std::string::npos) << probe;
@@ -127,8 +128,10 @@ TEST(Animate, KeyframesDriveThePngSequence) {
   std::ofstream(dir / "keys.json") << R"({"fps": 5, "duration": 1.0,
       "keys": [{"time": 0, "expression": {"smile": 0}}, {"time": 1, "yaw": 20, "expression": {"smile": 1}}]})";
   const fs::path out = dir / "frames";
+  // The morphable preview: its mesh gives exact opaque/transparent regions to check the alpha
+  // channel against (the neural frames' alpha is checked in pipeline/StudioBackend).
   const auto r = Studio("animate '" + Portrait() + "' '" + (dir / "keys.json").string() + "' -o '" + out.string() +
-                        "' --width 128 --height 96");
+                        "' --width 128 --height 96 --renderer morphable");
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   int count = 0;
   for (const auto& e : fs::directory_iterator(out)) count += e.path().extension() == ".png" ? 1 : 0;
@@ -229,7 +232,7 @@ TEST(Animate, BadInputsGiveClearMessagesAndExitCodes) {
   EXPECT_EQ(names, (std::vector<std::string>{"bad.json", "sky.png"}));
 }
 
-TEST(Animate, RandomWeightsOnlyOnRequestAndLabelledSo) {
+TEST(Animate, RandomWeightsOnRequestBundledModelByDefaultAllLabelled) {
   TempDir dir;
   const fs::path out = dir / "random.mp4";
   const auto r = Studio("animate '" + Portrait() + "' --random-weights --view orbit --seconds 0.4 --fps 5 -o '" +
@@ -238,12 +241,25 @@ TEST(Animate, RandomWeightsOnlyOnRequestAndLabelledSo) {
   EXPECT_NE(r.out.find("RANDOM weights"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("not a result"), std::string::npos) << r.out;
   EXPECT_NE(Probe(out).find("video,5/1,2"), std::string::npos) << Probe(out);
-  // Without the flag the network is never used.
-  const auto preview = Studio("animate '" + Portrait() + "' --view orbit --seconds 0.2 --fps 5 -o '" +
+  // Without the flag the trained model renders; the morphable preview only when asked for.
+  const auto neural = Studio("animate '" + Portrait() + "' --view orbit --seconds 0.2 --fps 5 -o '" +
+                             (dir / "n.mp4").string() + "' --width 64 --height 64");
+  ASSERT_EQ(neural.exit_code, 0) << neural.err;
+  EXPECT_EQ(neural.out.find("RANDOM"), std::string::npos) << neural.out;
+  EXPECT_NE(neural.out.find("Neural avatar: bundled neural model"), std::string::npos) << neural.out;
+  const auto preview = Studio("animate '" + Portrait() + "' --renderer morphable --view orbit --seconds 0.2 --fps 5 -o '" +
                               (dir / "p.mp4").string() + "' --width 64 --height 64");
   ASSERT_EQ(preview.exit_code, 0) << preview.err;
   EXPECT_EQ(preview.out.find("RANDOM"), std::string::npos) << preview.out;
-  EXPECT_NE(preview.out.find("Preview: morphable model"), std::string::npos) << preview.out;
+  EXPECT_NE(preview.out.find("Preview: morphable model (chosen"), std::string::npos) << preview.out;
+  // A named checkpoint that does not exist is an error naming it, never a silent preview.
+  const auto missing = Studio("animate '" + Portrait() + "' --checkpoint '" + (dir / "nope.ckpt").string() +
+                              "' --view orbit --seconds 0.2 --fps 5 -o '" + (dir / "m.mp4").string() + "'");
+  EXPECT_NE(missing.exit_code, 0);
+  EXPECT_NE((missing.out + missing.err).find("file not found: '" + (dir / "nope.ckpt").string() + "'"),
+            std::string::npos)
+      << missing.out << missing.err;
+  EXPECT_FALSE(fs::exists(dir / "m.mp4"));
 }
 
 TEST(Animate, HelpDescribesTheOptions) {

@@ -66,10 +66,11 @@ TEST(Cli, UnknownFlagIsAUsageError) {
   EXPECT_NE(r.err.find("--bogus"), std::string::npos) << r.err;
 }
 
-TEST(Cli, ReservedCommandSaysItIsNotAvailableYet) {
+TEST(Cli, EvalWithoutCheckpointIsAUsageError) {
+  // eval was the last reserved command; it is implemented now (tests/pipeline/eval_test.cc).
   const auto r = Studio("eval");
-  EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(r.err.find("not available"), std::string::npos) << r.err;
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--checkpoint"), std::string::npos) << r.err;
 }
 
 TEST(Cli, MissingInputFileIsAnErrorNamingTheFile) {

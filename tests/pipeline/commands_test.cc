@@ -42,9 +42,9 @@ TEST(Commands, InspectLiteAndBadConfig) {
   EXPECT_TRUE(Contains(bad.err, "enormous")) << bad.err;
 }
 
-TEST(Commands, RenderWithoutAnInstalledModelSaysSo) {
+TEST(Commands, RenderWithAnotherOrNoModelSaysSo) {
   TempDir dir;
-  // A real avatar file (tiny random network) so that only the missing model is wrong.
+  // A real avatar file (tiny random network) so that only the model is wrong.
   SessionOptions so;
   so.random_weights = true;
   so.config = "tiny";
@@ -56,11 +56,19 @@ TEST(Commands, RenderWithoutAnInstalledModelSaysSo) {
   const Avatar avatar = session.ReconstructFromAnalysis(
       PortraitFromAlignedImage(cv::Mat(64, 64, CV_8UC3, cv::Scalar(90, 120, 160))), fit, ctx);
   session.SaveAvatar(avatar, dir / "a.avatar");
-  const auto r = RunProcess(kExe + " render '" + (dir / "a.avatar").string() + "' -o '" + (dir / "o.png").string() +
-                            "' --data-dir '" + dir.path().string() + "'");
-  EXPECT_EQ(r.exit_code, 1);
-  EXPECT_TRUE(Contains(r.err, "No GOHA model is installed")) << r.err;
-  EXPECT_TRUE(Contains(r.err, "--random-weights")) << r.err;
+  const std::string render = kExe + " render '" + (dir / "a.avatar").string() + "' -o '" + (dir / "o.png").string() +
+                             "' --data-dir '" + dir.path().string() + "'";
+  // The bundled model loads, but the avatar belongs to other weights.
+  const auto other = RunProcess(render);
+  EXPECT_EQ(other.exit_code, 1);
+  EXPECT_TRUE(Contains(other.err, "random:tiny:0")) << other.err;
+  EXPECT_TRUE(Contains(other.err, "reconstruct the portrait again")) << other.err;
+  // No model anywhere (a resource folder without the bundled model, nothing installed).
+  TempDir empty;
+  const auto none = RunProcess(render, "AVATAR_RESOURCE_DIR='" + empty.path().string() + "'");
+  EXPECT_EQ(none.exit_code, 1);
+  EXPECT_TRUE(Contains(none.err, "No GOHA model found")) << none.err;
+  EXPECT_TRUE(Contains(none.err, "--checkpoint")) << none.err;
   EXPECT_FALSE(std::filesystem::exists(dir / "o.png"));
 }
 

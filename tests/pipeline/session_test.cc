@@ -189,11 +189,15 @@ TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   TempDir dir;
   torch::manual_seed(7);
   GohaModel model(ModelConfig::Tiny());
-  SaveModelCheckpoint(dir.path() / "m.ckpt", model, {});
+  CheckpointInfo info;
+  info.sr_trained = true;  // random weights run their (random) SR too
+  SaveModelCheckpoint(dir.path() / "m.ckpt", model, info);
   SessionOptions from_file;
   from_file.checkpoint = (dir.path() / "m.ckpt").string();
   Session a(from_file);
   Session b(TinyOptions(7));
+  EXPECT_EQ(a.Info().origin, "checkpoint");
+  EXPECT_TRUE(a.Info().sr_trained);
   EXPECT_EQ(a.Info().parameters, b.Info().parameters);
   EXPECT_EQ(a.Info().config_name, "tiny");
   EXPECT_EQ(a.Info().model_id.rfind("ckpt:", 0), 0u);
@@ -202,18 +206,69 @@ TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   EXPECT_TRUE(SameMat(fa.bgr, fb.bgr));
 }
 
-TEST(Session, NoModelInstalledSaysSoUnlessRandomWeightsAreRequested) {
+TEST(Session, StageOneWeightsUpsampleInsteadOfRunningTheUntrainedSr) {
   TempDir dir;
+  torch::manual_seed(7);
+  GohaModel model(ModelConfig::Tiny());
+  SaveModelCheckpoint(dir.path() / "m.ckpt", model, {});  // sr_trained = false (stage I)
+  SessionOptions o;
+  o.checkpoint = (dir.path() / "m.ckpt").string();
+  Session session(o);
+  EXPECT_FALSE(session.Info().sr_trained);
+  EXPECT_NE(DescribeModel(session.Info()).find("super-resolution not trained"), std::string::npos);
+  const Avatar avatar = MakeAvatar(session);
+  session.ResetCounters();
+  const Frame standard = session.Animate(avatar, {}, View{10}, Preset::kStandard);
+  const Frame final_frame = session.Animate(avatar, {}, View{10}, Preset::kFinal);
+  EXPECT_EQ(session.Counters().super_resolutions, 0);
+  EXPECT_FALSE(final_frame.super_resolved);
+  EXPECT_TRUE(final_frame.upsampled);
+  const ModelConfig c = ModelConfig::Tiny();
+  ASSERT_EQ(final_frame.bgr.rows, c.sr_size);
+  // The upsampled frame is the standard render scaled up: shrinking it back gives the render.
+  cv::Mat back;
+  cv::resize(final_frame.bgr, back, standard.bgr.size(), 0, 0, cv::INTER_AREA);
+  cv::Mat diff;
+  cv::absdiff(back, standard.bgr, diff);
+  EXPECT_LT(cv::mean(diff)[0] + cv::mean(diff)[1] + cv::mean(diff)[2], 3 * 4.0);
+}
+
+TEST(Session, DefaultIsTheInstalledModelElseTheBundledOneElseAClearError) {
+  TempDir dir;
+  // Nothing installed in the data folder: the bundled model of the source tree loads.
   SessionOptions o;
   o.data_dir = dir.path().string();
+  std::string origin;
+  const std::filesystem::path bundled = ResolveCheckpoint(o, &origin);
+  EXPECT_EQ(origin, "bundled");
+  EXPECT_EQ(bundled.filename(), "goha-default.ckpt");
+  EXPECT_TRUE(std::filesystem::exists(bundled)) << bundled;
+  // A model installed in the data folder wins over the bundled one.
+  std::filesystem::create_directories(dir.path() / "models");
+  GohaModel tiny(ModelConfig::Tiny());
+  SaveModelCheckpoint(dir.path() / "models" / "goha.ckpt", tiny, {});
+  EXPECT_EQ(ResolveCheckpoint(o, &origin), dir.path() / "models" / "goha.ckpt");
+  EXPECT_EQ(origin, "installed");
+  Session installed(o);
+  EXPECT_EQ(installed.Info().origin, "installed");
+  EXPECT_EQ(installed.Info().config_name, "tiny");
+  std::filesystem::remove(dir.path() / "models" / "goha.ckpt");
+  // No bundled model either (an install whose resource folder lacks it): MissingData naming where it looked.
+  TempDir empty;
+  ::setenv("AVATAR_RESOURCE_DIR", empty.path().c_str(), 1);
   try {
     Session s(o);
     ADD_FAILURE() << "expected MissingData";
   } catch (const MissingData& e) {
     const std::string msg = e.what();
-    EXPECT_NE(msg.find("No GOHA model is installed"), std::string::npos) << msg;
-    EXPECT_NE(msg.find("--random-weights"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("No GOHA model found"), std::string::npos) << msg;
+    EXPECT_NE(msg.find((empty.path() / "models").string()), std::string::npos) << msg;
+    EXPECT_NE(msg.find("--checkpoint"), std::string::npos) << msg;
   }
+  ::unsetenv("AVATAR_RESOURCE_DIR");
+  // Random weights need no model file.
+  EXPECT_EQ(ResolveCheckpoint(TinyOptions(), &origin), std::filesystem::path());
+  EXPECT_EQ(origin, "random");
   SessionOptions bad = TinyOptions();
   bad.config = "huge";
   EXPECT_THROW(Session{bad}, InvalidOptions);

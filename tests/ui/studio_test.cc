@@ -164,7 +164,28 @@ class StudioTest : public QObject {
     QVERIFY(shown.wait(30000) || !w.lastFrame().isNull());
     QVERIFY(!w.viewport()->label().isEmpty());
     QVERIFY(!w.lastFrame().isNull());
-    QVERIFY2(w.viewport()->label().contains(QStringLiteral("not trained")), qPrintable(w.viewport()->label()));
+    // The default renderer is the bundled neural model, and the label says so.
+    QVERIFY2(w.viewport()->label().contains(QStringLiteral("Neural avatar: bundled neural model")),
+             qPrintable(w.viewport()->label()));
+    Shot(&w, QStringLiteral("studio-neural"));
+    {
+      // The rendered head is a real frame: not blank, and its opacity covers part of the image only.
+      const QImage frame = w.lastFrame().convertToFormat(QImage::Format_RGB888);
+      const cv::Mat m(frame.height(), frame.width(), CV_8UC3, const_cast<uchar*>(frame.constBits()),
+                      static_cast<size_t>(frame.bytesPerLine()));
+      cv::Scalar mean, stddev;
+      cv::meanStdDev(m, mean, stddev);
+      qInfo("neural frame %dx%d: mean %.1f, std %.1f", frame.width(), frame.height(), mean[0], stddev[0]);
+      QVERIFY(stddev[0] + stddev[1] + stddev[2] > 10.0);
+    }
+    // The morphable preview is an explicit, labelled mode; the rest of this test case uses it.
+    w.sourcePanel()->morphablePreviewBox()->setChecked(true);
+    done.clear();
+    QVERIFY(w.reconstruct());
+    QVERIFY2(done.wait(120000), qPrintable(w.lastError()));
+    QVERIFY(shown.wait(30000) || !w.lastFrame().isNull());
+    QVERIFY2(w.viewport()->label().contains(QStringLiteral("Preview: morphable model (chosen")),
+             qPrintable(w.viewport()->label()));
     // The landmark overlay (Ctrl+L) draws the projected landmarks of the rendered head.
     QTest::keyClick(&w, Qt::Key_L, Qt::ControlModifier);
     QVERIFY(w.viewport()->showLandmarks());

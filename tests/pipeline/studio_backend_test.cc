@@ -1,0 +1,105 @@
+// CreateFrameSource, the one place that decides what renders a portrait: the bundled neural
+// model by default, the morphable preview when chosen or when no model loads (with the reason),
+// and an error, never a silent preview, for a checkpoint the user named. Real face analysis of
+// the packaged sample portrait; a synthetic morphable model so that nothing depends on the
+// committed one.
+
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+
+#include <opencv2/core.hpp>
+
+#include "common/temp_dir.h"
+#include "core/io/data_paths.h"
+#include "core/io/image_io.h"
+#include "core/pipeline/studio_backend.h"
+#include "core/util/error.h"
+#include "morphable/morphable_test_util.h"
+
+namespace avatar {
+namespace {
+
+using avatar::testing::TempDir;
+
+class StudioBackend : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new TempDir();
+    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 4, 6).Save(*dir_ / "model.avmm");
+    ASSERT_EQ(setenv("AVATAR_MORPHABLE_MODEL", (*dir_ / "model.avmm").c_str(), 1), 0);
+    portrait_ = new cv::Mat(LoadImageBgr(
+        DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)")));
+  }
+  static void TearDownTestSuite() {
+    delete portrait_;
+    delete dir_;
+  }
+  static RenderedFrame Render(const FrameSource& source, double yaw) {
+    FrameRequest r;
+    r.width = r.height = 96;
+    r.view.yaw = yaw;
+    RunContext ctx;
+    return source.Render(r, ctx);
+  }
+  static TempDir* dir_;
+  static cv::Mat* portrait_;
+};
+TempDir* StudioBackend::dir_ = nullptr;
+cv::Mat* StudioBackend::portrait_ = nullptr;
+
+TEST_F(StudioBackend, DefaultIsTheBundledNeuralModelAndItsFramesAreReal) {
+  RunContext ctx;
+  const auto source = CreateFrameSource(*portrait_, BackendOptions{}, ctx);
+  EXPECT_EQ(source->Label().rfind("Neural avatar: bundled neural model ckpt:", 0), 0u) << source->Label();
+  EXPECT_TRUE(source->SupportsPose());
+  EXPECT_FALSE(source->Overlay().landmarks.empty());  // the analysis overlay reaches the source panel
+  const RenderedFrame front = Render(*source, 0);
+  const RenderedFrame side = Render(*source, 30);
+  ASSERT_EQ(front.bgr.size(), cv::Size(96, 96));
+  ASSERT_EQ(front.alpha.type(), CV_8UC1);
+  // Alpha comes from the volume opacity: the head is opaque in the middle, the corners are not.
+  EXPECT_GT(front.alpha.at<uint8_t>(48, 48), 128);
+  EXPECT_LT(front.alpha.at<uint8_t>(2, 2), 128);
+  cv::Mat diff;
+  cv::absdiff(front.bgr, side.bgr, diff);
+  const cv::Scalar d = cv::mean(diff);
+  EXPECT_GT(d[0] + d[1] + d[2], 3 * 1.0) << "turning the camera did not change the neural frame";
+  EXPECT_NE(BackendStatement(BackendOptions{}).find("bundled neural avatar model"), std::string::npos);
+}
+
+TEST_F(StudioBackend, MorphablePreviewWhenChosenOrWhenNoModelLoads) {
+  RunContext ctx;
+  BackendOptions chosen;
+  chosen.renderer = "morphable";
+  const auto preview = CreateFrameSource(*portrait_, chosen, ctx);
+  EXPECT_EQ(preview->Label(), "Preview: morphable model (chosen instead of the neural avatar)");
+  EXPECT_EQ(Render(*preview, 0).bgr.size(), cv::Size(96, 96));
+  // No bundled model (an install whose resource folder lacks it): the preview, with the reason.
+  TempDir empty;
+  ASSERT_EQ(setenv("AVATAR_RESOURCE_DIR", empty.path().c_str(), 1), 0);
+  BackendOptions defaults;  // (the test data folder has no models/goha.ckpt installed)
+  const auto fallback = CreateFrameSource(*portrait_, defaults, ctx);
+  const std::string label = fallback->Label();
+  unsetenv("AVATAR_RESOURCE_DIR");
+  EXPECT_EQ(label.rfind("Preview: morphable model (neural model unavailable: No GOHA model found", 0), 0u) << label;
+  BackendOptions bad;
+  bad.renderer = "mesh";
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
+TEST_F(StudioBackend, NamedCheckpointMustLoad) {
+  TempDir dir;
+  RunContext ctx;
+  BackendOptions o;
+  o.checkpoint = (dir / "missing.ckpt").string();
+  try {
+    CreateFrameSource(*portrait_, o, ctx);
+    ADD_FAILURE() << "a missing --checkpoint must be an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("missing.ckpt"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace avatar
