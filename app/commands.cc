@@ -3,11 +3,13 @@
 #include <csignal>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <iostream>
 
 #include <opencv2/core/version.hpp>
 #include <torch/version.h>
 
+#include "core/pipeline/session.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 #include "core/util/threads.h"
@@ -129,6 +131,14 @@ int Main(int argc, char** argv) {
       const char* wait_policy = std::getenv("OMP_WAIT_POLICY");
       std::cout << "avatar-studio " << kVersion << " (LibTorch " << TORCH_VERSION << ", OpenCV " << CV_VERSION
                 << ", OpenMP wait policy " << (wait_policy != nullptr ? wait_policy : "default") << ")\n";
+      // Which neural model renders by default (found, not loaded).
+      try {
+        std::string origin;
+        const std::filesystem::path model = ResolveCheckpoint(SessionOptions{}, &origin);
+        std::cout << "default model: " << model.string() << " (" << origin << ")\n";
+      } catch (const Error& e) {
+        std::cout << "default model: none (" << e.what() << ")\n";
+      }
       return kExitOk;
     }
     if (first[0] != '-') {

@@ -27,7 +27,9 @@ TEST(Rasterizer, SingleTriangleCoverageIsExact) {
       const int s0 = Side(a, b, px, py), s1 = Side(b, c, px, py), s2 = Side(c, a, px, py);
       const bool inside = (s0 > 0 && s1 > 0 && s2 > 0) || (s0 < 0 && s1 < 0 && s2 < 0);
       const bool drawn = buf.triangle.at<int>(y, x) == 0;
-      if (s0 != 0 && s1 != 0 && s2 != 0) EXPECT_EQ(inside, drawn) << x << "," << y;
+      if (s0 != 0 && s1 != 0 && s2 != 0) {
+        EXPECT_EQ(inside, drawn) << x << "," << y;
+      }
       covered += drawn;
     }
   }
@@ -134,7 +136,9 @@ TEST(Rasterizer, ClosedSphereHasNoHolesAndMaskEqualsCoverage) {
         ASSERT_EQ(m, 1.0f) << "hole at " << x << "," << y;
         ++inside;
       }
-      if (d > radius_px + 0.5) ASSERT_EQ(m, 0.0f) << "spill at " << x << "," << y;
+      if (d > radius_px + 0.5) {
+        ASSERT_EQ(m, 0.0f) << "spill at " << x << "," << y;
+      }
       // Mask == coverage: colour is the texture (white) exactly where the mask is set.
       EXPECT_NEAR(r.image.at<cv::Vec3f>(y, x)[1], m, 1e-5);
       EXPECT_EQ(r.depth.at<float>(y, x) > 0.0f, m > 0.0f);
