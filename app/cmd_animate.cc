@@ -43,6 +43,7 @@ int RunAnimate(const std::vector<std::string>& args) {
     const AnimateResult r = RunAnimation(options.animate, ProcessContext());
     std::cout << "Wrote " << r.stats.frames << " frames at " << r.fps << " fps to '" << r.stats.output.string()
               << "'.\nFrames rendered by: " << r.source_label << "\n";
+    if (!r.driver_note.empty()) std::cout << "Note: " << r.driver_note << ".\n";
     if (!options.animate.driver.empty() && !r.driver_measured) {
       std::cout << "Note: this build cannot measure the driving video's expressions (no face analysis); the\n"
                    "driver gave timing and audio only.\n";

@@ -6,6 +6,11 @@
 // (weights at the end), RUN/samples/step-XXXXXXX.png (sample grids) and RUN/curve.png (loss
 // curves by scripts/plot-training at each state write, when python3 is there); Ctrl+C or
 // SIGTERM writes the state and stops.
+//
+// Data parallelism (core/train/distributed.h): start W processes with --world-size W --rank R
+// --init file:///PATH (one machine) or tcp://HOST:PORT (rank 0's host); --batch-size is per
+// process, so the global batch is W x --batch-size (incomplete batches at an epoch's end are
+// dropped). Every rank reads the same dataset and --out; only rank 0 writes the run folder.
 
 #include <algorithm>
 #include <csignal>
@@ -28,6 +33,7 @@
 #include "core/model/goha_model.h"
 #include "core/model/super_resolution.h"
 #include "core/train/dataset.h"
+#include "core/train/distributed.h"
 #include "core/train/losses.h"
 #include "core/train/perceptual.h"
 #include "core/train/trainer.h"
@@ -66,6 +72,7 @@ struct TrainCommandOptions {
   // Sample grid every this many steps (0 = only at the end).
   int64_t sample_every = 200;
   train::TrainerOptions trainer;
+  train::DistributedOptions dist;
   CommonOptions common;
 
   template <typename V>
@@ -98,6 +105,15 @@ struct TrainCommandOptions {
     v("rotation", trainer.rotation, "The release's mod-6 rotation of step kinds");
     v("max_bad_steps", trainer.max_bad_steps, "Non-finite steps in a row that stop the run");
     v("seed", trainer.seed, "Seed of the initialisation, the renders' jitter and the data order");
+    v("deterministic_render", trainer.deterministic_render,
+      "Training renders without sample jitter (with --tv-weight 0, W ranks then take exactly one process's steps)");
+    v("world_size", dist.world_size, "Data parallelism: number of processes (1 = none); --batch-size is per process");
+    v("rank", dist.rank, "Data parallelism: this process's rank in 0..world-size-1 (rank 0 writes the run folder)");
+    v("init", dist.init,
+      "Data parallelism: rendezvous, file:///PATH (one machine; the file must not exist yet) or tcp://HOST:PORT "
+      "(rank 0's host)");
+    v("backend", dist.backend, "Data parallelism: collective backend, gloo (CPU) or nccl (CUDA builds)");
+    v("dist_timeout", dist.timeout_s, "Data parallelism: seconds to wait for the other ranks");
     common.Visit(v);
   }
   void Validate() const {
@@ -112,6 +128,9 @@ struct TrainCommandOptions {
     AVATAR_CHECK_OPTION(perceptual == "mobilenet" || perceptual == "pyramid" || perceptual == "none")
         << "--perceptual must be mobilenet, pyramid or none";
     trainer.Validate();
+    dist.Validate();
+    AVATAR_CHECK_OPTION(!dist.enabled() || dist.backend != "nccl" || trainer.device.rfind("cuda", 0) == 0)
+        << "--backend nccl needs a CUDA --device (cuda:N for each rank)";
     common.Validate();
   }
 };
@@ -242,10 +261,17 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   if (dataset.image_size() != config.image_size)
     throw InvalidInput(o.data + ": the dataset's images are " + std::to_string(dataset.image_size()) +
                        " px but config '" + config.name + "' wants " + std::to_string(config.image_size));
+  const bool parallel = o.dist.enabled();
+  const bool lead = o.dist.rank == 0;
   train::LoaderOptions lo;
-  lo.batch_size = o.batch_size;
+  // Data parallelism: every rank reads the global batches in the same order and takes its shard.
+  lo.batch_size = o.batch_size * static_cast<int>(o.dist.world_size);
+  lo.drop_last = parallel;
   lo.seed = static_cast<uint64_t>(o.trainer.seed);
-  LoaderSource source(dataset, lo);
+  LoaderSource loader_source(dataset, lo);
+  std::unique_ptr<train::ShardedBatchSource> shards;
+  if (parallel) shards = std::make_unique<train::ShardedBatchSource>(loader_source, o.dist.rank, o.dist.world_size);
+  train::BatchSource& source = parallel ? static_cast<train::BatchSource&>(*shards) : loader_source;
 
   train::PerceptualFn perceptual;
   std::shared_ptr<PerceptualLoss> net;
@@ -270,6 +296,13 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   model_options.data_dir = o.common.data_dir;
   model_options.pretrained = !resuming && o.init_weights.empty();
   train::StageOneTrainer trainer(GohaModel(config, model_options), o.trainer, perceptual);
+  if (parallel) {
+    if (lead)
+      std::cerr << "train: data parallel, " << o.dist.world_size << " ranks (" << o.dist.backend << ", " << o.dist.init
+                << "), global batch " << lo.batch_size << "; waiting for the other ranks\n";
+    trainer.SetGradientReducer(std::make_shared<train::ProcessGroupReducer>(o.dist));
+    if (!lead) std::cerr << "train: rank " << o.dist.rank << " of " << o.dist.world_size << " joined\n";
+  }
   train::RunOptions run;
   run.out_dir = o.out;
   run.steps = o.steps;
@@ -295,20 +328,23 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
       std::cerr << "\ntrain: warning: sample grid of step " << step << " not written: " << e.what() << "\n";
     }
   };
-  const fs::path script = FindPlotScript();
-  if (script.empty()) std::cerr << "train: scripts/plot-training not found: no RUN/curve.png\n";
+  const fs::path script = lead ? FindPlotScript() : fs::path();
+  if (script.empty() && lead) std::cerr << "train: scripts/plot-training not found: no RUN/curve.png\n";
   run.on_state_written = [out_dir, script](int64_t) { PlotCurve(out_dir, script); };
-  std::cerr << "train: stage " << o.trainer.stage << ", config " << config.name << ", " << dataset.size() << " pairs, batch " << o.batch_size
-            << ", steps to " << o.steps;
-  if (o.trainer.stage == 1)
-    std::cerr << " (expression from " << o.trainer.expression_start << ", appearance from "
-              << o.trainer.appearance_start << ")";
-  else
-    std::cerr << " (super-resolution only, GAN weight " << o.trainer.gan_weight << ", R1 gamma " << o.trainer.r1_gamma
-              << ")";
-  std::cerr << ", device " << o.trainer.device << ", perceptual " << o.perceptual << "\n";
-  if (o.trainer.stage == 2 && run.init_weights.empty() && !resuming)
-    std::cerr << "train: warning: stage II without --init-weights trains the SR behind an untrained stage-I network\n";
+  if (lead) {
+    std::cerr << "train: stage " << o.trainer.stage << ", config " << config.name << ", " << dataset.size()
+              << " pairs, batch " << o.batch_size << ", steps to " << o.steps;
+    if (o.trainer.stage == 1)
+      std::cerr << " (expression from " << o.trainer.expression_start << ", appearance from "
+                << o.trainer.appearance_start << ")";
+    else
+      std::cerr << " (super-resolution only, GAN weight " << o.trainer.gan_weight << ", R1 gamma " << o.trainer.r1_gamma
+                << ")";
+    std::cerr << ", device " << o.trainer.device << ", perceptual " << o.perceptual << "\n";
+    if (o.trainer.stage == 2 && run.init_weights.empty() && !resuming)
+      std::cerr
+          << "train: warning: stage II without --init-weights trains the SR behind an untrained stage-I network\n";
+  }
   const auto previous = std::signal(SIGTERM, OnSigterm);
   train::RunResult r;
   try {
@@ -318,6 +354,7 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
     throw;
   }
   std::signal(SIGTERM, previous);
+  if (!lead) return kExitOk;
   std::cout << "trained steps " << r.first_step << " -> " << r.last_step << " (stopped by " << r.stopped_by << ", "
             << r.skipped << " non-finite steps skipped); weights: " << (fs::path(o.out) / "model.ckpt").string()
             << ", state: " << train::StatePath(o.out).string() << "\n";
@@ -328,18 +365,22 @@ int RunTrain(const std::vector<std::string>& args) {
   return GuardedRun("train", [&] {
     TrainCommandOptions options;
     std::vector<std::string> positionals;
-    if (!ParseCommand(options, args,
-                      "avatar-studio train --config C --data DIR --out RUN [--stage 1|2] [--init-weights CKPT] "
-                      "[--resume] [--steps N] [--hours H]",
-                      "GOHA's training. Stage I (--stage 1): canonical, expression and appearance renders against the "
-                      "target (L1 + perceptual), the neutral loss and the density TV loss, with the paper's curriculum. "
-                      "Stage II (--stage 2): the stage-I network frozen, only the super-resolution module trains: L1 + "
-                      "perceptual of its output against the target at SR resolution, plus --gan-weight x the "
-                      "non-saturating loss of a dual discriminator (SR output + raw render; R1 gamma 10 every 16 "
-                      "steps). Start stage II in a new folder with --init-weights STAGE1_RUN/model.ckpt; "
-                      "--steps counts from the checkpoint's step. Samples: RUN/samples/step-N.png (rows: source, "
-                      "target, I_c, I_c+e, I_c+e+p[, SR]); loss curves: RUN/curve.png.",
-                      &positionals)) {
+    if (!ParseCommand(
+            options, args,
+            "avatar-studio train --config C --data DIR --out RUN [--stage 1|2] [--init-weights CKPT] "
+            "[--resume] [--steps N] [--hours H] [--world-size W --rank R --init file:///PATH|tcp://HOST:PORT]",
+            "GOHA's training. Stage I (--stage 1): canonical, expression and appearance renders against the "
+            "target (L1 + perceptual), the neutral loss and the density TV loss, with the paper's curriculum. "
+            "Stage II (--stage 2): the stage-I network frozen, only the super-resolution module trains: L1 + "
+            "perceptual of its output against the target at SR resolution, plus --gan-weight x the "
+            "non-saturating loss of a dual discriminator (SR output + raw render; R1 gamma 10 every 16 "
+            "steps). Start stage II in a new folder with --init-weights STAGE1_RUN/model.ckpt; "
+            "--steps counts from the checkpoint's step. Samples: RUN/samples/step-N.png (rows: source, "
+            "target, I_c, I_c+e, I_c+e+p[, SR]); loss curves: RUN/curve.png. Data parallelism: W processes "
+            "started with --world-size W and ranks 0..W-1 share a rendezvous (--init) and the run folder; "
+            "each takes its share of a global batch of W x --batch-size, the gradients are averaged, only "
+            "rank 0 writes.",
+            &positionals)) {
       return kExitOk;
     }
     AVATAR_CHECK_OPTION(positionals.empty()) << "train takes no positional arguments";

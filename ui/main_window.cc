@@ -55,6 +55,12 @@ QString LocalFileFromMime(const QMimeData* mime) {
   return {};
 }
 
+// "the neutral frame ..." -> "The neutral frame ..." for the status bar.
+QString SentenceCase(const QString& text) {
+  if (text.isEmpty()) return text;
+  return text.left(1).toUpper() + text.mid(1);
+}
+
 }  // namespace
 
 bool IsImageFile(const QString& path) {
@@ -80,14 +86,26 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
   connect(preview_, &PreviewWorker::frameReady, this, &MainWindow::onFrame);
   connect(preview_, &PreviewWorker::renderFailed, this,
           [this](const QString& m) { status_label_->setText(tr("Render failed: %1").arg(m)); });
+  connect(preview_, &PreviewWorker::drivingNeutralChosen, this, [this](qint64 frame, const QString& note) {
+    driving_note_ = note;
+    neutral_in_use_ = frame;
+    if (loading_driver_) return;  // driverLoaded shows both.
+    showNeutralInUse();
+    if (!note.isEmpty()) status_label_->setText(SentenceCase(note));
+  });
   connect(preview_, &PreviewWorker::driverLoaded, this,
           [this](const QString& path, qint64 frames, double fps, bool measured, bool has_audio) {
+            loading_driver_ = false;
             driving_panel_->setDriver(path, frames, fps, measured, has_audio);
-            status_label_->setText(tr("Driving video %1 loaded").arg(QFileInfo(path).fileName()));
+            showNeutralInUse();
+            QString status = tr("Driving video %1 loaded").arg(QFileInfo(path).fileName());
+            if (!driving_note_.isEmpty()) status += QStringLiteral("; ") + driving_note_;
+            status_label_->setText(status);
             emit driverLoaded(path);
             requestPreview();
           });
   connect(preview_, &PreviewWorker::driverFailed, this, [this](const QString& path, const QString& message) {
+    loading_driver_ = false;
     showError(tr("Could not load the driving video"), message);
     emit driverFailed(path, message);
   });
@@ -394,11 +412,9 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
 void MainWindow::requestPreview() {
   if (!source_) return;
   PreviewRequest r;
+  // The user's view offset; the worker composes it with the source's pose and the driver's
+  // (ComposeFrame, as exports do).
   r.frame.view = pose_panel_->pose();
-  const ViewPose base = source_->SourcePose();
-  r.frame.view.yaw += base.yaw;
-  r.frame.view.pitch += base.pitch;
-  r.frame.view.roll += base.roll;
   r.frame.expression = expression_panel_->expression();
   r.frame.width = kPreviewSize;
   r.frame.height = kPreviewSize;
@@ -438,9 +454,29 @@ void MainWindow::stepDriver(int delta) {
   driving_panel_->setCurrentFrame(std::clamp(driving_panel_->currentFrame() + delta, 0, n - 1));
 }
 
+QString MainWindow::statusText() const { return status_label_->text(); }
+
+void MainWindow::showNeutralInUse() {
+  // The panel shows the neutral frame actually used (the driver's choice when the requested
+  // frame has no face); its signals are blocked, so this does not ask the driver again.
+  if (neutral_in_use_ < 0 || !driving_panel_->hasDriver()) return;
+  DrivingOptions o = driving_panel_->options();
+  if (o.neutral_frame == neutral_in_use_) return;
+  o.neutral_frame = neutral_in_use_;
+  driving_panel_->setOptions(o);
+}
+
 void MainWindow::openDriver(const QString& path) {
   driving_panel_->setPlaying(false);
-  preview_->loadDriver(path, driving_panel_->options());
+  // A neutral frame belongs to its clip: a new clip starts from frame 0 (or the first frame
+  // with a face, which the driver picks and reports).
+  DrivingOptions options = driving_panel_->options();
+  options.neutral_frame = 0;
+  driving_panel_->setOptions(options);
+  driving_note_.clear();
+  neutral_in_use_ = -1;
+  loading_driver_ = true;
+  preview_->loadDriver(path, options);
 }
 
 bool MainWindow::startExport(const ExportOptions& output, const AnimationPlan& plan_in) {

@@ -86,6 +86,8 @@ class MainWindow : public QMainWindow {
   const QImage& lastAlpha() const { return last_alpha_; }
   // Driver frame index of the last frame shown (-1 without a driver).
   qint64 lastDriverFrame() const { return last_driver_frame_; }
+  // The status bar's message (e.g. which neutral frame a driver uses).
+  QString statusText() const;
 
  signals:
   void portraitLoaded(const QString& path);
@@ -117,6 +119,7 @@ class MainWindow : public QMainWindow {
   void showError(const QString& title, const QString& message);
   void setFrameSource(std::shared_ptr<const FrameSource> source);
   void requestPreview();
+  void showNeutralInUse();
   void onFrame(const PreviewFrame& frame);
   void onJobStarted(const QString& title);
   void onJobProgress(const QString& stage, double fraction, const QString& message);
@@ -160,6 +163,9 @@ class MainWindow : public QMainWindow {
   QImage last_frame_;
   QImage last_alpha_;
   qint64 last_driver_frame_ = -1;
+  QString driving_note_;        // The driver's note on its neutral frame ("" = none).
+  qint64 neutral_in_use_ = -1;  // The driver's neutral frame (-1 = none).
+  bool loading_driver_ = false;
   QString last_error_;
   bool dialogs_enabled_ = true;
 };

@@ -6,9 +6,6 @@
 #include <QElapsedTimer>
 #include <QMetaObject>
 
-#include <map>
-
-#include "core/io/video_io.h"
 #include "core/util/error.h"
 #include "ui/image_convert.h"
 
@@ -16,39 +13,7 @@ namespace avatar::ui {
 
 struct PreviewWorker::DriverState {
   QString path;
-  std::unique_ptr<VideoReader> reader;
-  std::unique_ptr<FrameAnalyzer> analyzer;
-  DrivingOptions options;
-  std::unique_ptr<DrivingTransfer> transfer;
-  std::map<int64_t, FrameMeasurement> measured;  // Small per frame (a pose and ~64 floats).
-  int64_t last_index = -2;
-  cv::Mat frame;
-
-  FrameMeasurement Measure(int64_t index, RunContext& ctx, cv::Mat* frame_out) {
-    if (reader->NextIndex() != index) {
-      reader->Seek(index);
-      if (analyzer) analyzer->Reset();
-    }
-    cv::Mat f;
-    if (!reader->Read(f)) throw InvalidInput("cannot read frame " + std::to_string(index) + " of the driving video");
-    if (frame_out != nullptr) *frame_out = f;
-    auto it = measured.find(index);
-    if (it != measured.end()) return it->second;
-    FrameMeasurement m;
-    if (analyzer) m = analyzer->Measure(f, ctx);
-    measured[index] = m;
-    return m;
-  }
-
-  void ApplyOptions(const DrivingOptions& o, RunContext& ctx) {
-    options = o;
-    transfer = std::make_unique<DrivingTransfer>(o);
-    if (analyzer && o.relative) {
-      const int64_t n = std::clamp<int64_t>(o.neutral_frame, 0, std::max<int64_t>(0, reader->Info().frame_count - 1));
-      transfer->SetNeutral(Measure(n, ctx, nullptr));
-    }
-    last_index = -2;
-  }
+  std::unique_ptr<DrivingVideo> video;
 };
 
 PreviewWorker::PreviewWorker(QObject* parent) : QObject(parent) {
@@ -94,16 +59,21 @@ void PreviewWorker::loadDriver(const QString& path, const DrivingOptions& option
     c10::InferenceMode inference;
     try {
       options.Validate();
+      RunContext ctx;
+      std::unique_ptr<FrameAnalyzer> analyzer = analyzers_ ? analyzers_(ctx) : nullptr;
       auto state = std::make_unique<DriverState>();
       state->path = path;
-      state->reader = std::make_unique<VideoReader>(path.toStdString());
-      RunContext ctx;
-      if (analyzers_) state->analyzer = analyzers_(ctx);
-      state->ApplyOptions(options, ctx);
-      const VideoInfo info = state->reader->Info();
-      const bool measured = state->analyzer != nullptr;
+      state->video = std::make_unique<DrivingVideo>(path.toStdString(), std::move(analyzer), options, ctx);
+      const DrivingVideo& v = *state->video;
+      const qint64 frames = v.FrameCount();
+      const double fps = v.Fps();
+      const bool measured = v.Measured();
+      const bool audio = v.HasAudio();
+      const qint64 neutral = v.NeutralFrame();
+      const QString note = QString::fromStdString(v.NeutralNote());
       driver_ = std::move(state);
-      emit driverLoaded(path, info.frame_count, info.fps, measured, info.has_audio);
+      emit drivingNeutralChosen(neutral, note);
+      emit driverLoaded(path, frames, fps, measured, audio);
     } catch (const std::exception& e) {
       emit driverFailed(path, QString::fromStdString(e.what()));
     }
@@ -116,7 +86,8 @@ void PreviewWorker::setDrivingOptions(const DrivingOptions& options) {
     c10::InferenceMode inference;
     try {
       RunContext ctx;
-      driver_->ApplyOptions(options, ctx);
+      driver_->video->SetOptions(options, ctx);
+      emit drivingNeutralChosen(driver_->video->NeutralFrame(), QString::fromStdString(driver_->video->NeutralNote()));
     } catch (const std::exception& e) {
       emit renderFailed(QString::fromStdString(e.what()));
     }
@@ -174,29 +145,22 @@ PreviewFrame PreviewWorker::renderOne(const PreviewRequest& request, const std::
   QElapsedTimer clock;
   clock.start();
   RunContext ctx;
-  FrameRequest frame_request = request.frame;
   PreviewFrame out;
+  DrivingSample sample;
+  bool driven = false;
   if (request.driver_frame >= 0 && driver_) {
     cv::Mat video_frame;
-    FrameMeasurement m = driver_->Measure(request.driver_frame, ctx, &video_frame);
-    // Smoothing only applies while playing forward; a jump restarts it.
-    const bool sequential = request.driver_frame == driver_->last_index + 1;
-    if (!sequential) driver_->transfer->ResetHistory();
-    driver_->last_index = request.driver_frame;
-    const DrivingSample sample = driver_->transfer->Apply(m, true);
-    out.driver_frame = request.driver_frame;
-    out.driver_face_found = driver_->analyzer == nullptr || m.face_found;
-    out.driver_image = ToQImage(video_frame);
-    if (driver_->analyzer) {
-      frame_request.expression.coefficients = sample.expression.coefficients;
-      frame_request.expression.coefficients_absolute = sample.expression.coefficients_absolute;
-      if (request.driver_pose) {
-        frame_request.view.yaw += sample.pose.yaw;
-        frame_request.view.pitch += sample.pose.pitch;
-        frame_request.view.roll += sample.pose.roll;
-      }
+    if (!driver_->video->At(request.driver_frame, sample, ctx, &video_frame)) {
+      throw InvalidInput("cannot read frame " + std::to_string(request.driver_frame) + " of the driving video");
     }
+    driven = driver_->video->Measured();
+    out.driver_frame = request.driver_frame;
+    out.driver_face_found = sample.face_found;
+    out.driver_image = ToQImage(video_frame);
   }
+  const FrameRequest frame_request =
+      ComposeFrame(source->SourcePose(), request.frame.view, request.frame.expression, driven ? &sample : nullptr,
+                   request.driver_pose, request.frame.width, request.frame.height);
   RenderedFrame rendered = source->Render(frame_request, ctx);
   out.image = ToQImage(rendered.bgr);
   if (!rendered.alpha.empty()) {

@@ -2,8 +2,9 @@
 // Renders the viewport on its own thread and coalesces requests: while a frame renders,
 // newer requests replace each other, so only the latest camera/expression/driver state is
 // rendered next. It renders whatever frame source the window gives it (the portrait, the
-// morphable preview or the neural session). It also owns the driving video: decoding and
-// analysing driver frames happens here, never on the GUI thread.
+// morphable preview or the neural session). It also owns the driving video (a DrivingVideo,
+// the same seekable driver every export reads): decoding and analysing driver frames happens
+// here, never on the GUI thread. What is rendered is composed by ComposeFrame, as in exports.
 
 #include <QImage>
 #include <QObject>
@@ -22,7 +23,10 @@ namespace avatar::ui {
 
 // One viewport request.
 struct PreviewRequest {
-  FrameRequest frame;         // Camera, expression, size.
+  // The user's view (an offset from the source's own pose; its zoom is the frame's zoom),
+  // the user's expression controls and the size. The worker composes the rendered camera and
+  // expression from it, the source's pose and the driver's sample (ComposeFrame).
+  FrameRequest frame;
   int64_t driver_frame = -1;  // Driver frame to apply (-1 = none).
   bool driver_pose = false;   // Apply the driver's head pose (else only its expression).
 };
@@ -73,6 +77,10 @@ class PreviewWorker : public QObject {
   void renderFailed(const QString& message);
   void driverLoaded(const QString& path, qint64 frames, double fps, bool measured, bool has_audio);
   void driverFailed(const QString& path, const QString& message);
+  // After a driver loads (before driverLoaded) and after its options change: the neutral
+  // frame in use (-1: none) and, when it replaced a requested frame without a face, the
+  // sentence saying so ("" otherwise).
+  void drivingNeutralChosen(qint64 frame, const QString& note);
 
  private:
   struct DriverState;

@@ -24,38 +24,26 @@ void AnimationView::Validate() const {
 
 FrameRequest PlanFrame(const FrameSource& source, const AnimationPlan& plan, const DrivingSample* sample,
                        bool driver_is_video, int64_t index, int64_t total) {
-  FrameRequest r;
-  r.width = plan.width;
-  r.height = plan.height;
   const ViewPose base = source.SourcePose();
-  if (plan.view.mode == "driver" && sample != nullptr) {
-    if (driver_is_video) {
-      // A video's pose is measured on the driver's head: in relative mode it is an offset
-      // from the neutral frame, applied on top of the portrait's own pose.
-      r.view = sample->pose;
-      r.view.yaw += base.yaw;
-      r.view.pitch += base.pitch;
-      r.view.roll += base.roll;
-      r.view.zoom = 1.0;
-    } else {
-      r.view = sample->pose;  // Keyframes give the camera directly.
-    }
-  } else if (plan.view.mode == "orbit") {
-    r.view = base;
+  // The user's view offset of this frame: the plan's zoom, plus the turntable's yaw.
+  ViewPose user;
+  user.zoom = plan.view.zoom;
+  if (plan.view.mode == "driver" && sample != nullptr && !driver_is_video) {
+    // Keyframes give the camera directly (its zoom times the plan's).
+    FrameRequest r = ComposeFrame(ViewPose{}, sample->pose, plan.base_expression, sample, false, plan.width,
+                                  plan.height);
+    r.view.zoom = sample->pose.zoom * plan.view.zoom;
+    return r;
+  }
+  if (plan.view.mode == "orbit") {
     const double phase = total > 1 ? 2.0 * kPi * static_cast<double>(index) / static_cast<double>(total) : 0.0;
-    r.view.yaw = base.yaw + plan.view.orbit_degrees * std::sin(phase);
-  } else {
-    r.view = base;
+    user.yaw = plan.view.orbit_degrees * std::sin(phase);
   }
-  r.view.zoom *= plan.view.zoom;
-  r.expression = plan.base_expression;
-  if (sample != nullptr) {
-    r.expression.coefficients = sample->expression.coefficients;
-    r.expression.coefficients_absolute = sample->expression.coefficients_absolute;
-    for (const auto& [name, value] : sample->expression.controls) r.expression.controls[name] += value;
-  }
-  for (auto& entry : r.expression.controls) entry.second = std::clamp(entry.second, 0.0f, 1.0f);
-  return r;
+  // A video's pose is measured on the driver's head: in relative mode it is an offset from the
+  // neutral frame, applied on top of the portrait's own pose (the same composition as the
+  // studio's preview).
+  const bool follow = plan.view.mode == "driver" && driver_is_video;
+  return ComposeFrame(base, user, plan.base_expression, sample, follow, plan.width, plan.height);
 }
 
 ExportStats ExportAnimation(const FrameSource& source, Driver* driver, const AnimationPlan& plan, ExportOptions output,
@@ -147,6 +135,10 @@ AnimateResult RunAnimation(const AnimateOptions& options, RunContext& ctx) {
   AnimateResult result;
   result.source_label = source->Label();
   result.driver_measured = driver != nullptr && driver->Measured();
+  if (const auto* video = dynamic_cast<const VideoDriver*>(driver.get())) {
+    result.driver_note = video->Video().NeutralNote();
+    result.neutral_frame = video->Video().NeutralFrame();
+  }
   {
     RunContext::ProgressRange range(ctx, 0.15, 1.0);
     result.stats = ExportAnimation(*source, driver.get(), options.Plan(), out, ctx);

@@ -48,8 +48,9 @@ struct AnimationPlan {
   bool keep_audio = true;
 };
 
-// The camera and expression of frame `index` of `total` (exposed for tests and the GUI
-// timeline). `sample` is the driver's sample (nullptr without a driver).
+// The camera and expression of frame `index` of `total` of an export, through ComposeFrame
+// (driving.h), the composition the studio's preview uses too. `sample` is the driver's
+// sample (nullptr without a driver).
 FrameRequest PlanFrame(const FrameSource& source, const AnimationPlan& plan, const DrivingSample* sample,
                        bool driver_is_video, int64_t index, int64_t total);
 
@@ -122,6 +123,10 @@ struct AnimateResult {
   std::string source_label;  // FrameSource::Label() of what rendered the frames.
   bool driver_measured = false;
   double fps = 0.0;
+  // A video driver's neutral frame (-1: none) and, when it replaced a neutral frame without
+  // a face, the sentence saying so ("" otherwise).
+  int64_t neutral_frame = -1;
+  std::string driver_note;
 };
 
 // The whole `animate` command: loads the portrait, builds the frame source (CreateFrameSource),

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <iterator>
 
 #include <nlohmann/json.hpp>
 
@@ -151,56 +153,217 @@ bool KeyframeDriver::Next(DrivingSample& sample, RunContext& ctx) {
 
 // ----------------------------------------------------------------------------- video
 
+DrivingVideo::DrivingVideo(const fs::path& path, std::unique_ptr<FrameAnalyzer> analyzer, const DrivingOptions& options,
+                           RunContext& ctx)
+    : reader_(std::make_unique<VideoReader>(path)), analyzer_(std::move(analyzer)), options_(options), transfer_(options) {
+  SetOptions(options, ctx);
+}
+
+DrivingVideo::~DrivingVideo() = default;
+
+double DrivingVideo::Fps() const { return reader_->Info().fps; }
+int64_t DrivingVideo::FrameCount() const { return reader_->Info().frame_count; }
+const fs::path& DrivingVideo::Path() const { return reader_->Path(); }
+bool DrivingVideo::HasAudio() const { return reader_->Info().has_audio; }
+
+const FrameMeasurement& DrivingVideo::Measure(int64_t index, RunContext& ctx, cv::Mat* frame_out, bool* read_ok) {
+  static const FrameMeasurement kNone;
+  *read_ok = false;
+  auto cached = measured_.find(index);
+  if (cached != measured_.end() && frame_out == nullptr) {
+    *read_ok = true;
+    return cached->second;
+  }
+  // Past the declared end only when reading on (a declared count may be an estimate);
+  // Seek() would clamp to the last frame instead.
+  if (index >= FrameCount() && reader_->NextIndex() != index) return kNone;
+  if (reader_->NextIndex() != index) reader_->Seek(index);
+  cv::Mat frame;
+  if (!reader_->Read(frame)) return kNone;
+  *read_ok = true;
+  if (frame_out != nullptr) *frame_out = frame;
+  if (cached != measured_.end()) return cached->second;
+  FrameMeasurement m;
+  if (analyzer_) {
+    // The analyser (a tracker) sees frames in order: anything but the next frame restarts it.
+    // This depends only on which frames were measured, so every caller gets the same values.
+    if (index != last_measured_ + 1) analyzer_->Reset();
+    m = analyzer_->Measure(frame, ctx);
+    last_measured_ = index;
+  }
+  if (measured_.size() >= kMaxCachedFrames) {
+    // Forget the measurement farthest from this frame.
+    const int64_t lo = measured_.begin()->first;
+    const int64_t hi = measured_.rbegin()->first;
+    measured_.erase(index - lo > hi - index ? measured_.begin() : std::prev(measured_.end()));
+  }
+  return measured_.emplace(index, std::move(m)).first->second;
+}
+
+std::optional<int64_t> DrivingVideo::FirstFaceFrom(int64_t from, RunContext& ctx) {
+  const int64_t end = std::min(FrameCount(), from + kNeutralSearchFrames);
+  for (int64_t i = from; i < end; ++i) {
+    if (i > from) {
+      ctx.Report("look for a face in the driving video", static_cast<double>(i - from) / static_cast<double>(end - from),
+                 "frame " + std::to_string(i));
+    }
+    bool ok = false;
+    const FrameMeasurement& m = Measure(i, ctx, nullptr, &ok);
+    if (!ok) break;
+    if (m.face_found) return i;
+  }
+  return std::nullopt;
+}
+
+std::optional<int64_t> DrivingVideo::LastFaceBefore(int64_t index, RunContext& ctx) {
+  // Measured forward in short runs (decoding backwards frame by frame would seek every time),
+  // searched backwards.
+  constexpr int64_t kRun = 25;
+  const int64_t stop = std::max<int64_t>(0, index - kNeutralSearchFrames);
+  for (int64_t end = index; end > stop; end -= kRun) {
+    const int64_t begin = std::max<int64_t>(stop, end - kRun);
+    for (int64_t i = begin; i < end; ++i) {
+      bool ok = false;
+      Measure(i, ctx, nullptr, &ok);
+    }
+    for (int64_t i = end - 1; i >= begin; --i) {
+      auto it = measured_.find(i);
+      if (it != measured_.end() && it->second.face_found) return i;
+    }
+  }
+  return std::nullopt;
+}
+
+DrivingVideo::Choice DrivingVideo::ChooseReference(const DrivingOptions& options, RunContext& ctx) {
+  Choice c;
+  if (!analyzer_) return c;
+  const int64_t count = FrameCount();
+  const std::string name = Path().filename().string();
+  if (options.relative) {
+    AVATAR_CHECK_OPTION(options.neutral_frame < count)
+        << "--neutral-frame " << options.neutral_frame << " is past the end of '" << Path().string() << "' ("
+        << count << " frames: 0.." << count - 1 << ")";
+  }
+  const int64_t from = options.relative ? options.neutral_frame : 0;
+  ctx.Report("analyse neutral frame", 0.0, "frame " + std::to_string(from));
+  const std::optional<int64_t> found = FirstFaceFrom(from, ctx);
+  if (!found.has_value()) {
+    if (!options.relative) return c;  // Absolute: nothing to hold before a face; frames stay neutral.
+    const int64_t last = std::min(count, from + kNeutralSearchFrames) - 1;
+    throw InvalidInput("no face found in '" + Path().string() + "' from the neutral frame " + std::to_string(from) +
+                       " to frame " + std::to_string(last) +
+                       "; choose a driving video that shows a face, or another neutral frame (--neutral-frame)");
+  }
+  c.index = *found;
+  c.measurement = measured_.at(*found);
+  if (options.relative && *found != from) {
+    char seconds[32];
+    std::snprintf(seconds, sizeof(seconds), "%.2f", Fps() > 0.0 ? static_cast<double>(*found) / Fps() : 0.0);
+    c.note = "the neutral frame " + std::to_string(from) + " of '" + name + "' shows no face; using frame " +
+             std::to_string(*found) + " (" + seconds + " s), the first frame with a face, as the neutral frame";
+  }
+  return c;
+}
+
+void DrivingVideo::SetOptions(const DrivingOptions& options, RunContext& ctx) {
+  options.Validate();
+  Choice c = ChooseReference(options, ctx);
+  options_ = options;
+  transfer_ = DrivingTransfer(options);
+  if (options.relative && c.measurement.has_value()) transfer_.SetNeutral(*c.measurement);
+  neutral_index_ = options.relative ? c.index : -1;
+  neutral_note_ = std::move(c.note);
+  fallback_ = std::move(c.measurement);
+  last_index_ = -2;
+  last_good_.reset();
+}
+
+bool DrivingVideo::At(int64_t index, DrivingSample& sample, RunContext& ctx, cv::Mat* frame_out) {
+  ctx.ThrowIfCancelled();
+  if (index < 0) return false;
+  bool ok = false;
+  FrameMeasurement m = Measure(index, ctx, frame_out, &ok);
+  if (!ok) return false;
+  if (!analyzer_) {
+    sample = DrivingSample{};
+    last_index_ = index;
+    return true;
+  }
+  if (index != last_index_ + 1) {
+    // A jump: smoothing restarts, and the held measurement is looked up afresh.
+    transfer_.ResetHistory();
+    last_good_.reset();
+    if (!m.face_found) {
+      if (const std::optional<int64_t> j = LastFaceBefore(index, ctx)) last_good_ = measured_.at(*j);
+    }
+  }
+  if (m.face_found) {
+    last_good_ = m;
+  } else {
+    // Hold the last measured face so the avatar does not snap on a missed face.
+    if (last_good_.has_value()) {
+      m = *last_good_;
+    } else if (fallback_.has_value()) {
+      m = *fallback_;
+    }
+    m.face_found = false;
+  }
+  sample = transfer_.Apply(m, true);
+  last_index_ = index;
+  return true;
+}
+
 VideoDriver::VideoDriver(const fs::path& path, std::unique_ptr<FrameAnalyzer> analyzer, const DrivingOptions& options,
                          RunContext& ctx)
-    : reader_(std::make_unique<VideoReader>(path)), analyzer_(std::move(analyzer)), transfer_(options) {
-  options.Validate();
-  if (analyzer_ && options.relative) {
-    AVATAR_CHECK_OPTION(options.neutral_frame < reader_->Info().frame_count)
-        << "--neutral-frame " << options.neutral_frame << " is past the end of '" << path.string() << "' ("
-        << reader_->Info().frame_count << " frames)";
-    ctx.Report("analyse neutral frame", 0.0);
-    reader_->Seek(options.neutral_frame);
-    cv::Mat neutral;
-    AVATAR_CHECK_INPUT(reader_->Read(neutral))
-        << "cannot read the neutral frame " << options.neutral_frame << " of '" << path.string() << "'";
-    FrameMeasurement m = analyzer_->Measure(neutral, ctx);
-    AVATAR_CHECK_INPUT(m.face_found) << "no face found in the neutral frame " << options.neutral_frame << " of '"
-                                     << path.string() << "'; choose another frame with --neutral-frame";
-    transfer_.SetNeutral(m);
-    analyzer_->Reset();
-    reader_->Seek(0);
-  }
-}
+    : video_(path, std::move(analyzer), options, ctx) {}
 
 VideoDriver::~VideoDriver() = default;
 
-double VideoDriver::Fps() const { return reader_->Info().fps; }
-int64_t VideoDriver::FrameCount() const { return reader_->Info().frame_count; }
-std::string VideoDriver::AudioSource() const { return reader_->Info().has_audio ? reader_->Path().string() : ""; }
+double VideoDriver::Fps() const { return video_.Fps(); }
+int64_t VideoDriver::FrameCount() const { return video_.FrameCount(); }
+std::string VideoDriver::AudioSource() const { return video_.HasAudio() ? video_.Path().string() : ""; }
 
 bool VideoDriver::Next(DrivingSample& sample, RunContext& ctx) {
-  ctx.ThrowIfCancelled();
-  if (!reader_->Read(frame_)) return false;
-  if (!analyzer_) {
-    sample = DrivingSample{};
-    return true;
-  }
-  FrameMeasurement m = analyzer_->Measure(frame_, ctx);
-  if (!m.face_found) {
-    // Hold the last measured frame so the avatar does not snap to neutral on a missed face.
-    if (last_good_.has_value()) {
-      m = *last_good_;
-      m.face_found = false;
-    } else if (transfer_.Neutral().has_value()) {
-      m = *transfer_.Neutral();
-      m.face_found = false;
-    }
-  } else {
-    last_good_ = m;
-  }
-  sample = transfer_.Apply(m, true);
+  if (!video_.At(next_, sample, ctx)) return false;
+  ++next_;
   return true;
+}
+
+// ----------------------------------------------------------------------------- composition
+
+ViewPose ComposeView(const ViewPose& source_pose, const ViewPose& user_view, const ViewPose* driver_pose) {
+  ViewPose v = source_pose;
+  v.yaw += user_view.yaw;
+  v.pitch += user_view.pitch;
+  v.roll += user_view.roll;
+  if (driver_pose != nullptr) {
+    v.yaw += driver_pose->yaw;
+    v.pitch += driver_pose->pitch;
+    v.roll += driver_pose->roll;
+  }
+  v.zoom = user_view.zoom;
+  return v;
+}
+
+FrameExpression ComposeExpression(const FrameExpression& user, const DrivingSample* sample) {
+  FrameExpression e = user;
+  if (sample != nullptr) {
+    e.coefficients = sample->expression.coefficients;
+    e.coefficients_absolute = sample->expression.coefficients_absolute;
+    for (const auto& [name, value] : sample->expression.controls) e.controls[name] += value;
+  }
+  for (auto& entry : e.controls) entry.second = std::clamp(entry.second, 0.0f, 1.0f);
+  return e;
+}
+
+FrameRequest ComposeFrame(const ViewPose& source_pose, const ViewPose& user_view, const FrameExpression& user_expression,
+                          const DrivingSample* sample, bool follow_driver_pose, int width, int height) {
+  FrameRequest r;
+  r.width = width;
+  r.height = height;
+  r.view = ComposeView(source_pose, user_view, follow_driver_pose && sample != nullptr ? &sample->pose : nullptr);
+  r.expression = ComposeExpression(user_expression, sample);
+  return r;
 }
 
 std::unique_ptr<Driver> OpenDriver(const fs::path& path, const FrameAnalyzerFactory& analyzers,

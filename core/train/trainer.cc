@@ -107,6 +107,35 @@ class RandomNoiseScope {
   std::vector<std::pair<torch::Tensor, torch::Tensor>> saved_;
 };
 
+std::vector<std::string> KeysOf(const std::map<std::string, double>& m) {
+  std::vector<std::string> keys;
+  for (const auto& item : m) keys.push_back(item.first);
+  return keys;
+}
+
+// Data parallelism: the gradients of `params` and the step's reported numbers (`scalars`, and
+// the entries `keys` of each map; an entry a rank lacks counts as NaN) averaged over the ranks.
+// Returns whether every rank's loss was finite; when only another rank's was not, says so in
+// r.skip_reason.
+using MapKeys = std::pair<std::map<std::string, double>*, std::vector<std::string>>;
+bool ReduceOverRanks(GradientReducer& reducer, bool local_ok, const std::vector<double*>& scalars,
+                     const std::vector<MapKeys>& maps, const std::vector<torch::Tensor>& params, StepResult& r) {
+  std::vector<double> values;
+  for (const double* v : scalars) values.push_back(*v);
+  for (const auto& [map, keys] : maps)
+    for (const auto& key : keys) {
+      const auto it = map->find(key);
+      values.push_back(it != map->end() ? it->second : std::nan(""));
+    }
+  const bool all_ok = reducer.ReduceGradients(params, local_ok, values);
+  size_t i = 0;
+  for (double* v : scalars) *v = values[i++];
+  for (const auto& [map, keys] : maps)
+    for (const auto& key : keys) (*map)[key] = values[i++];
+  if (local_ok && !all_ok) r.skip_reason = "non-finite loss on another rank";
+  return all_ok;
+}
+
 }  // namespace
 
 void TrainerOptions::Validate() const {
@@ -239,28 +268,31 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   const torch::Tensor tc = model_->CanonicalPlanes(b.source);
   torch::Tensor largest = tc;
   if (recon) {
-    terms["canonical"] = ImageLoss(model_->Render(tc, target_cam, 0, false).rgb, target, perceptual_,
-                                   options_.perceptual_weight).mean();
+    terms["canonical"] = ImageLoss(model_->Render(tc, target_cam, 0, options_.deterministic_render).rgb, target,
+                                   perceptual_, options_.perceptual_weight)
+                             .mean();
     if (with_expression) {
       const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
       largest = tce;
-      terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, false).rgb, target, perceptual_,
-                                      options_.perceptual_weight).mean();
+      terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, options_.deterministic_render).rgb, target,
+                                      perceptual_, options_.perceptual_weight)
+                                .mean();
       if (full) {
         const torch::Tensor tp =
             model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
         const torch::Tensor tcep = tce + tp;
         largest = tcep;
-        terms["appearance"] = ImageLoss(model_->Render(tcep, target_cam, 0, false).rgb, target, perceptual_,
-                                        options_.perceptual_weight).mean();
+        terms["appearance"] = ImageLoss(model_->Render(tcep, target_cam, 0, options_.deterministic_render).rgb, target,
+                                        perceptual_, options_.perceptual_weight)
+                                  .mean();
       }
     }
   }
   if (neutral && options_.neutral_weight > 0) {
-    const torch::Tensor ic_source = model_->Render(tc, source_cam, 0, false).rgb;
-    terms["neutral"] = options_.neutral_weight *
-                       NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual_, options_.perceptual_weight)
-                           .mean();
+    const torch::Tensor ic_source = model_->Render(tc, source_cam, 0, options_.deterministic_render).rgb;
+    terms["neutral"] =
+        options_.neutral_weight *
+        NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual_, options_.perceptual_weight).mean();
   }
   if (options_.tv_weight > 0) {
     TvOptions tv;
@@ -281,8 +313,13 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   r.loss = total.item<double>();
   bool ok = std::isfinite(r.loss);
   if (!ok) r.skip_reason = "non-finite loss";
+  if (ok) total.backward();
+  if (reducer_) {
+    // Data parallelism: the gradients and reported losses averaged over the ranks, so that the
+    // checks and the update below are the same on every rank.
+    ok = ReduceOverRanks(*reducer_, ok, {&r.loss}, {{&r.terms, KeysOf(r.terms)}}, params_, r);
+  }
   if (ok) {
-    total.backward();
     r.grad_norm = GradNorm(params_, device_);
     ok = std::isfinite(r.grad_norm);
     if (!ok) r.skip_reason = "non-finite gradient";
@@ -328,7 +365,7 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
     const torch::Tensor tp =
         model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
-    low = model_->Render(tce + tp, target_cam, 0, false).rgb;
+    low = model_->Render(tce + tp, target_cam, 0, options_.deterministic_render).rgb;
   }
 
   // Generator (SR) terms; D's parameters take no gradient from them.
@@ -354,9 +391,12 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     if (!ok) r.skip_reason = "non-finite loss";
     if (ok) {
       total.backward();
-      r.grad_norm = GradNorm(params_, device_);
-      ok = std::isfinite(r.grad_norm);
-      if (!ok) r.skip_reason = "non-finite gradient";
+      // With a reducer the gradients are checked after they are averaged over the ranks.
+      if (!reducer_) {
+        r.grad_norm = GradNorm(params_, device_);
+        ok = std::isfinite(r.grad_norm);
+        if (!ok) r.skip_reason = "non-finite gradient";
+      }
     }
   }
 
@@ -376,8 +416,8 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     r.d_terms["real_logit"] = real_logits.mean().item<double>();
     r.d_terms["fake_logit"] = fake_logits.mean().item<double>();
     if (r1) {
-      const torch::Tensor penalty = 0.5 * options_.r1_gamma * static_cast<double>(options_.r1_every) *
-                                    R1Penalty(real_logits, {rh, rl}).mean();
+      const torch::Tensor penalty =
+          0.5 * options_.r1_gamma * static_cast<double>(options_.r1_every) * R1Penalty(real_logits, {rh, rl}).mean();
       d_total = d_total + penalty;
       r.d_terms["r1"] = penalty.item<double>();
     }
@@ -386,16 +426,35 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     if (!ok) r.skip_reason = "non-finite discriminator loss";
     if (ok) {
       d_total.backward();
+      if (!reducer_) {
+        r.d_grad_norm = GradNorm(d_params_, device_);
+        ok = std::isfinite(r.d_grad_norm);
+        if (!ok) r.skip_reason = "non-finite discriminator gradient";
+      }
+    }
+  }
+  if (reducer_) {
+    // Data parallelism: G's and D's gradients and the reported numbers averaged over the ranks
+    // (D's terms are fixed by the step: a rank that stopped before D reports NaN for them).
+    std::vector<std::string> d_keys = {"d", "real_logit", "fake_logit"};
+    if (options_.r1_gamma > 0 && step_ % options_.r1_every == 0) d_keys.push_back("r1");
+    std::vector<torch::Tensor> all = params_;
+    all.insert(all.end(), d_params_.begin(), d_params_.end());
+    if (!ok) r.d_loss = std::nan("");
+    ok = ReduceOverRanks(*reducer_, ok, {&r.loss, &r.d_loss}, {{&r.terms, KeysOf(r.terms)}, {&r.d_terms, d_keys}}, all,
+                         r);
+    if (ok) {
+      r.grad_norm = GradNorm(params_, device_);
       r.d_grad_norm = GradNorm(d_params_, device_);
-      ok = std::isfinite(r.d_grad_norm);
-      if (!ok) r.skip_reason = "non-finite discriminator gradient";
+      ok = std::isfinite(r.grad_norm) && std::isfinite(r.d_grad_norm);
+      if (!ok) r.skip_reason = std::isfinite(r.grad_norm) ? "non-finite discriminator gradient" : "non-finite gradient";
     }
   }
   if (ok) {
     AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
                options_.beta1, options_.beta2, options_.eps);
-    AdamUpdate(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_, r.d_grad_norm, options_.grad_clip,
-               options_.d_lr, options_.beta1, options_.beta2, options_.eps);
+    AdamUpdate(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_, r.d_grad_norm, options_.grad_clip, options_.d_lr,
+               options_.beta1, options_.beta2, options_.eps);
     bad_in_a_row_ = 0;
   } else {
     r.skipped = true;
@@ -428,6 +487,43 @@ StageOneTrainer::Renders StageOneTrainer::Evaluate(const TrainBatch& batch) {
   if (options_.stage == 2) out.super_resolved = model_->SuperResolve(out.full);
   model_->train();
   return out;
+}
+
+void StageOneTrainer::SyncFromRankZero() {
+  if (!reducer_) return;
+  std::vector<double> at = {static_cast<double>(step_), -static_cast<double>(step_)};
+  reducer_->AllMax(at);
+  if (at[0] != -at[1])
+    throw InvalidInput("data-parallel training: the ranks start at different steps (" + std::to_string(-at[1]) +
+                       " to " + std::to_string(at[0]) +
+                       "); every rank must resume the same RUN/state.ckpt "
+                       "(a run folder shared by all ranks) or start afresh");
+  torch::NoGradGuard no_grad;
+  std::vector<torch::Tensor> tensors;
+  for (const auto& p : model_->parameters(true)) tensors.push_back(p.detach());
+  for (const auto& b : model_->buffers(true)) tensors.push_back(b);
+  if (!disc_.is_empty()) {
+    for (const auto& p : disc_->parameters(true)) tensors.push_back(p.detach());
+    for (const auto& b : disc_->buffers(true)) tensors.push_back(b);
+  }
+  // Adam moments where rank 0 has them (a rank that lacks one starts it at zero to receive it).
+  auto moments = [&](std::vector<torch::Tensor>& params, std::vector<torch::Tensor>& m, std::vector<torch::Tensor>& v,
+                     std::vector<int64_t>& steps) {
+    std::vector<torch::Tensor> counts = {torch::empty({static_cast<int64_t>(steps.size())}, torch::kFloat64)};
+    for (size_t i = 0; i < steps.size(); ++i) counts[0][static_cast<int64_t>(i)] = static_cast<double>(steps[i]);
+    reducer_->Broadcast(counts);
+    for (size_t i = 0; i < steps.size(); ++i) {
+      steps[i] = static_cast<int64_t>(counts[0][static_cast<int64_t>(i)].item<double>());
+      if (steps[i] == 0) continue;
+      if (!m[i].defined()) m[i] = torch::zeros_like(params[i]);
+      if (!v[i].defined()) v[i] = torch::zeros_like(params[i]);
+      tensors.push_back(m[i]);
+      tensors.push_back(v[i]);
+    }
+  };
+  moments(params_, exp_avg_, exp_avg_sq_, param_steps_);
+  if (!disc_.is_empty()) moments(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_);
+  reducer_->Broadcast(tensors);
 }
 
 bool StageOneTrainer::AllFinite() const {
@@ -652,26 +748,36 @@ StageOneTrainer::Renders ForDisplay(const StageOneTrainer::Renders& r) {
 
 RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOptions& options, RunContext& ctx) {
   options.Validate();
+  // Data parallelism: every rank trains, only rank 0 writes (state, log, samples, exports).
+  GradientReducer* const reducer = trainer.gradient_reducer();
+  const bool lead = reducer == nullptr || reducer->rank() == 0;
+  const int64_t world = reducer != nullptr ? reducer->world_size() : 1;
   std::error_code ec;
-  fs::create_directories(options.out_dir, ec);
+  if (lead) fs::create_directories(options.out_dir, ec);
   if (ec) throw Io(options.out_dir.string() + ": cannot create the run folder: " + ec.message());
   const fs::path state = StatePath(options.out_dir);
   if (options.resume && fs::exists(state))
     trainer.LoadState(state, &source);
   else if (!options.init_weights.empty())
     trainer.InitFromCheckpoint(options.init_weights);
+  trainer.SyncFromRankZero();
   RunResult result;
   result.first_step = trainer.step();
-  // Every step once in the log: drop what was logged at or after the step this run starts at.
-  TruncateLog(LogPath(options.out_dir), result.first_step);
-  std::ofstream log(LogPath(options.out_dir), std::ios::app);
-  if (!log) throw Io(LogPath(options.out_dir).string() + ": cannot open the training log");
+  std::ofstream log;
+  if (lead) {
+    // Every step once in the log: drop what was logged at or after the step this run starts at.
+    TruncateLog(LogPath(options.out_dir), result.first_step);
+    log.open(LogPath(options.out_dir), std::ios::app);
+    if (!log) throw Io(LogPath(options.out_dir).string() + ": cannot open the training log");
+  }
+  const bool progress = options.progress && lead;
 
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   auto last_save = start;
   auto elapsed = [](Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); };
   auto save = [&] {
+    if (!lead) return;
     trainer.SaveState(state, &source);
     last_save = Clock::now();
     if (options.on_state_written) options.on_state_written(trainer.step());
@@ -680,7 +786,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   TrainBatch sample_batch;
   int64_t last_sampled = -1;
   auto sample = [&] {
-    if (!options.on_samples || sample_batch.size() == 0 || last_sampled == trainer.step()) return;
+    if (!lead || !options.on_samples || sample_batch.size() == 0 || last_sampled == trainer.step()) return;
     last_sampled = trainer.step();
     options.on_samples(trainer.step(), ForDisplay(trainer.Evaluate(sample_batch)));
   };
@@ -689,23 +795,39 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   result.stopped_by = "steps";
   try {
     while (trainer.step() < options.steps) {
-      if (options.hours > 0 && elapsed(start) >= options.hours * 3600.0) {
+      bool out_of_time = options.hours > 0 && elapsed(start) >= options.hours * 3600.0;
+      if (reducer != nullptr) {
+        // The ranks stop together: at the first step any of them is out of time or cancelled.
+        std::vector<double> stop = {out_of_time ? 1.0 : 0.0, ctx.IsCancelled() ? 1.0 : 0.0};
+        reducer->AllMax(stop);
+        out_of_time = stop[0] > 0;
+        if (stop[1] > 0) ctx.RequestCancel();
+      }
+      if (out_of_time) {
         result.stopped_by = "hours";
         break;
       }
       ctx.ThrowIfCancelled();
       const TrainBatch batch = source.Next();
-      if (options.on_samples && sample_batch.size() == 0) sample_batch = FirstPairs(batch, 4);
+      if (lead && options.on_samples && sample_batch.size() == 0) sample_batch = FirstPairs(batch, 4);
       const StepResult r = trainer.Step(batch);
       ++timed;
       mean_step += (r.seconds - mean_step) / static_cast<double>(std::min<int64_t>(timed, 20));
-      const double samples_per_s = r.seconds > 0 ? batch.size() / r.seconds : 0.0;
-      nlohmann::json line = {{"step", r.step},         {"phase", r.phase},
-                             {"loss", r.loss},         {"terms", r.terms},
-                             {"grad_norm", r.grad_norm}, {"lr", trainer.options().lr},
-                             {"step_s", r.seconds},    {"samples_per_s", samples_per_s},
-                             {"batch", batch.size()},  {"skipped", r.skipped},
+      // Samples of the global batch (every rank's shard) per second.
+      const int64_t global_batch = batch.size() * world;
+      const double samples_per_s = r.seconds > 0 ? global_batch / r.seconds : 0.0;
+      nlohmann::json line = {{"step", r.step},
+                             {"phase", r.phase},
+                             {"loss", r.loss},
+                             {"terms", r.terms},
+                             {"grad_norm", r.grad_norm},
+                             {"lr", trainer.options().lr},
+                             {"step_s", r.seconds},
+                             {"samples_per_s", samples_per_s},
+                             {"batch", global_batch},
+                             {"skipped", r.skipped},
                              {"skipped_total", trainer.skipped_steps()}};
+      if (world > 1) line["world_size"] = world;
       if (trainer.options().stage == 2) {
         line["d_loss"] = r.d_loss;
         line["d_terms"] = r.d_terms;
@@ -714,12 +836,14 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       }
       if (r.skipped) line["skip_reason"] = r.skip_reason;
       // nlohmann writes non-finite doubles as null, which keeps each line valid JSON.
-      log << line.dump() << "\n";
-      log.flush();
+      if (lead) {
+        log << line.dump() << "\n";
+        log.flush();
+      }
       const int64_t done = trainer.step() - result.first_step, total = options.steps - result.first_step;
       double eta = mean_step * static_cast<double>(options.steps - trainer.step());
       if (options.hours > 0) eta = std::min(eta, options.hours * 3600.0 - elapsed(start));
-      if (options.progress) {
+      if (progress) {
         std::ostringstream p;
         p << "\rtrain: step " << trainer.step() << "/" << options.steps << "  " << r.phase << "  loss " << std::fixed
           << std::setprecision(4) << r.loss << "  " << std::setprecision(2) << mean_step << " s/step  "
@@ -728,7 +852,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
         std::cerr << p.str() << std::flush;
       }
       if (trainer.bad_in_a_row() >= trainer.options().max_bad_steps) {
-        if (options.progress) std::cerr << "\n";
+        if (progress) std::cerr << "\n";
         save();
         throw InvalidInput("training stopped: " + std::to_string(trainer.bad_in_a_row()) +
                            " steps in a row had a non-finite loss or gradient (last: " + r.skip_reason +
@@ -738,19 +862,26 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
           (options.checkpoint_steps > 0 && trainer.step() % options.checkpoint_steps == 0))
         save();
       if (options.sample_every > 0 && trainer.step() % options.sample_every == 0) sample();
-      ctx.Report("train", total > 0 ? static_cast<double>(done) / static_cast<double>(total) : 1.0,
-                 "step " + std::to_string(trainer.step()));
+      try {
+        ctx.Report("train", total > 0 ? static_cast<double>(done) / static_cast<double>(total) : 1.0,
+                   "step " + std::to_string(trainer.step()));
+      } catch (const Cancelled&) {
+        // Data parallelism: a cancel stops the ranks together, at the next step's agreement.
+        if (reducer == nullptr) throw;
+      }
     }
   } catch (const Cancelled&) {
-    if (options.progress) std::cerr << "\n";
+    if (progress) std::cerr << "\n";
     save();
     throw;
   }
-  if (options.progress) std::cerr << "\n";
+  if (progress) std::cerr << "\n";
   sample();
   save();
-  trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
-  trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);
+  if (lead) {
+    trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
+    trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);
+  }
   result.last_step = trainer.step();
   result.skipped = trainer.skipped_steps();
   return result;

@@ -9,7 +9,8 @@
 //   + neutral_weight x NeutralLoss(R(T_c, C_s), I_neu, M_neu)
 //   + tv_weight x DensityTvLoss on the densities of the largest active plane sum.
 // Training renders jitter their stratified and importance samples (RenderOptions::deterministic
-// = false); evaluation renders (Evaluate) are deterministic.
+// = false, unless TrainerOptions::deterministic_render); evaluation renders (Evaluate) are
+// deterministic.
 //
 // Curriculum (the paper's 750k stage-I steps: + expression at 120k = 16%, + appearance at
 // 240k = 32%): steps [0, expression_start) train I_c only, [expression_start, appearance_start)
@@ -81,6 +82,26 @@ class BatchSource {
   virtual void Restore(const nlohmann::json& state) = 0;
 };
 
+// Data-parallel training (core/train/distributed.h has the torch.distributed implementation):
+// how the ranks of a group agree. Every rank calls every method in the same order.
+class GradientReducer {
+ public:
+  virtual ~GradientReducer() = default;
+  virtual int64_t rank() const = 0;
+  virtual int64_t world_size() const = 0;
+  // Called by the trainer on every rank once per step, after its backward pass (also when its own
+  // loss was not finite: local_ok false, no backward). Sums the gradients of `params` over the
+  // ranks and divides them by world_size() (a rank without a gradient for a parameter adds zeros;
+  // one that no rank has stays undefined) and replaces `values` by their mean over the ranks.
+  // Returns true when local_ok was true on every rank.
+  virtual bool ReduceGradients(const std::vector<torch::Tensor>& params, bool local_ok,
+                               std::vector<double>& values) = 0;
+  // Rank 0's tensors to every rank, in place (same shapes and types on every rank).
+  virtual void Broadcast(const std::vector<torch::Tensor>& tensors) = 0;
+  // Element-wise maximum over the ranks, in place.
+  virtual void AllMax(std::vector<double>& values) = 0;
+};
+
 struct TrainerOptions {
   // Device ("cpu", "cuda", "cuda:1").
   std::string device = "cpu";
@@ -119,6 +140,10 @@ struct TrainerOptions {
   double d_lr = 1e-4;
   // Stage II: fresh random SR noise maps in every training forward (off: the fixed maps).
   bool sr_random_noise = true;
+  // Training renders at fixed sample positions (no jitter; evaluation renders always are). With
+  // tv_weight 0 a stage-I step then draws no random numbers, which makes data-parallel runs equal
+  // to a single-process run at the global batch (core/train/distributed.h).
+  bool deterministic_render = false;
 
   template <typename V>
   void Visit(V&& v) {
@@ -144,6 +169,7 @@ struct TrainerOptions {
     v("r1_every", r1_every, "Stage II: lazy R1 interval in steps");
     v("d_lr", d_lr, "Stage II: discriminator learning rate");
     v("sr_random_noise", sr_random_noise, "Stage II: random SR noise maps while training");
+    v("deterministic_render", deterministic_render, "Training renders without sample jitter");
   }
   // Throws InvalidOptions.
   void Validate() const;
@@ -198,6 +224,17 @@ class StageOneTrainer {
   void ExportWeights(const std::filesystem::path& path, const std::string& data_provenance,
                      bool half_precision = false) const;
 
+  // Data parallelism: with a reducer every Step averages its gradients (and reported losses)
+  // over the ranks before the non-finite check and clipping, so every rank takes the same
+  // decision and update. RunTraining then broadcasts rank 0's weights at the start and only rank
+  // 0 writes the state, log, samples and weights. Null: one process.
+  void SetGradientReducer(std::shared_ptr<GradientReducer> reducer) { reducer_ = std::move(reducer); }
+  GradientReducer* gradient_reducer() const { return reducer_.get(); }
+  // Rank 0's weights, buffers and optimiser moments to every rank (the discriminator's too);
+  // throws InvalidInput when the ranks are not at the same step (e.g. a state resumed by only
+  // some ranks: every rank must see the same run folder). No-op without a reducer.
+  void SyncFromRankZero();
+
   GohaModel& model() { return model_; }
   // Stage II's discriminator (empty in stage I).
   DualDiscriminator& discriminator() { return disc_; }
@@ -221,6 +258,7 @@ class StageOneTrainer {
   // The SR was trained before this run (initialised from such a checkpoint).
   bool sr_trained_before_ = false;
   PerceptualFn perceptual_;
+  std::shared_ptr<GradientReducer> reducer_;
   std::vector<std::string> names_;
   std::vector<torch::Tensor> params_;
   std::vector<torch::Tensor> exp_avg_, exp_avg_sq_;
@@ -273,7 +311,11 @@ struct RunResult {
   std::string stopped_by;   // "steps", "hours"
 };
 
-// Runs the trainer until options.steps / hours. On cancel (ctx) it writes the state and throws
+// Runs the trainer until options.steps / hours. With a gradient reducer (data parallelism) every
+// rank runs it with its shard of each batch: the ranks agree on stopping (hours, cancel: any
+// rank's cancel stops all) and only rank 0 touches the run folder (state, log, samples, exports,
+// progress line); every rank resumes from the same RUN/state.ckpt (a shared folder).
+// On cancel (ctx) it writes the state and throws
 // Cancelled; after max_bad_steps bad steps in a row it writes the (last good) state and throws.
 RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOptions& options, RunContext& ctx);
 

@@ -6,8 +6,10 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -47,6 +49,32 @@ ProcessResult Studio(const std::string& args) {
       std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
       "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2 AVATAR_MORPHABLE_MODEL='" +
           SyntheticModelFile() + "'");
+}
+
+// Runs the studio with `folder` as the working directory (for relative output paths).
+ProcessResult StudioIn(const fs::path& folder, const std::string& args) {
+  return avatar::testing::RunProcess(
+      std::string("'") + AVATAR_STUDIO_EXE + "' " + args,
+      "cd '" + folder.string() + "' && env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM AVATAR_THREADS=2 " +
+          "AVATAR_MORPHABLE_MODEL='" + SyntheticModelFile() + "'");
+}
+
+// The PNG frames in `folder`, sorted.
+std::vector<std::string> PngFrames(const fs::path& folder) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(folder)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+std::vector<std::string> FrameNames(int n) {
+  std::vector<std::string> names;
+  for (int i = 0; i < n; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "frame_%06d.png", i);
+    names.push_back(name);
+  }
+  return names;
 }
 
 std::string Portrait() {
@@ -268,6 +296,114 @@ TEST(Animate, HelpDescribesTheOptions) {
   for (const char* flag : {"--view", "--neutral-frame", "--smoothing", "--no-audio", "--random-weights", "--preset"}) {
     EXPECT_NE(r.out.find(flag), std::string::npos) << flag << "\n" << r.out;
   }
+}
+
+TEST(Animate, PngSequenceToAFolderWithOrWithoutTheSlashMissingOrExisting) {
+  TempDir dir;
+  // Two frames (0.4 s at 5 fps) of the turntable; the morphable preview for exact alpha.
+  const std::string clip = "animate '" + Portrait() + "' --renderer morphable --view orbit --fps 5 --width 64 --height 64";
+  struct Case {
+    std::string output;   // As typed, relative to the working folder.
+    std::string folder;   // The folder it names.
+    std::string before;   // "missing", "empty" or "export" (an earlier export of ours, 3 frames).
+  };
+  const std::vector<Case> cases = {{"frames/", "frames", "missing"}, {"frames", "frames", "export"},
+                                   {"plain", "plain", "missing"},    {"slash/", "slash", "export"},
+                                   {"empty/", "empty", "empty"},     {"empty2", "empty2", "empty"}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.output + " (" + c.before + ")");
+    const fs::path folder = dir / c.folder;
+    if (c.before == "empty") fs::create_directories(folder);
+    if (c.before == "export") {
+      fs::remove_all(folder);
+      const auto first = StudioIn(dir.path(), clip + " --seconds 0.6 -o '" + c.folder + "'");
+      ASSERT_EQ(first.exit_code, 0) << first.out << first.err;
+      ASSERT_EQ(PngFrames(folder), FrameNames(3));
+    }
+    const auto r = StudioIn(dir.path(), clip + " --seconds 0.4 -o '" + c.output + "'");
+    ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("Wrote 2 frames"), std::string::npos) << r.out;
+    // Exactly the new export: an earlier one is replaced, not merged.
+    EXPECT_EQ(PngFrames(folder), FrameNames(2));
+    const cv::Mat png = cv::imread((folder / "frame_000001.png").string(), cv::IMREAD_UNCHANGED);
+    ASSERT_EQ(png.type(), CV_8UC4);
+    EXPECT_EQ(png.size(), cv::Size(64, 64));
+    std::vector<cv::Mat> channels;
+    cv::split(png, channels);
+    EXPECT_EQ(channels[3].at<uchar>(0, 0), 0) << "the background must be transparent";
+    EXPECT_GT(cv::countNonZero(channels[3] == 255), 100) << "the head is missing";
+  }
+  // No temporary folders are left next to the targets.
+  std::vector<std::string> names = dir.List();
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"empty", "empty2", "frames", "plain", "slash"}));
+  // A folder holding something that is not ours is never replaced.
+  std::ofstream(dir / "plain" / "notes.txt") << "mine";
+  const auto refused = StudioIn(dir.path(), clip + " --seconds 0.4 -o plain/");
+  EXPECT_EQ(refused.exit_code, 1) << refused.out << refused.err;
+  EXPECT_NE(refused.err.find("notes.txt"), std::string::npos) << refused.err;
+  EXPECT_TRUE(fs::exists(dir / "plain" / "notes.txt"));
+  EXPECT_EQ(PngFrames(dir / "plain").size(), 3u);  // Two frames and the user's file.
+}
+
+TEST(Animate, Mp4ToARelativePathInTheWorkingFolder) {
+  TempDir dir;
+  const auto r = StudioIn(dir.path(), "animate '" + Portrait() +
+                                          "' --renderer morphable --view orbit --seconds 0.6 --fps 5 -o clip.mp4 "
+                                          "--width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(Probe(dir / "clip.mp4").find("video,5/1,3"), std::string::npos) << Probe(dir / "clip.mp4");
+  EXPECT_EQ(dir.List(), std::vector<std::string>{"clip.mp4"});
+}
+
+TEST(Animate, ADriverWhoseFirstTwoSecondsShowNoFaceAnimatesEndToEnd) {
+  TempDir dir;
+  // 2 s of black frames, then the face clip: 28 frames at 10 fps (the default neural renderer).
+  const std::string source =
+      DataPaths::Resolve().Require("samples/cap13_edit2.mp4", "a sample driving clip (run scripts/setup)").string();
+  const fs::path clip = dir / "late.mp4";
+  ASSERT_EQ(RunProgram("ffmpeg", {"-nostdin", "-y", "-v", "error", "-f", "lavfi", "-i",
+                                  "color=c=black:s=400x300:r=10:d=2", "-i", source, "-filter_complex",
+                                  "[1:v]fps=10,trim=end_frame=8,setpts=PTS-STARTPTS,setsar=1[face];"
+                                  "[0:v]setsar=1[blank];[blank][face]concat=n=2:v=1:a=0[v]",
+                                  "-map", "[v]", "-c:v", "libx264", "-pix_fmt", "yuv420p", clip.string()}),
+            0);
+  const fs::path out = dir / "out.mp4";
+  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' -o '" + out.string() +
+                        "' --width 64 --height 64");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("Wrote 28 frames at 10 fps"), std::string::npos) << r.out;
+  // The choice is reported: frame 0 had no face, the first frame with one (20 or a little later) is used.
+  const std::string note = "Note: the neutral frame 0 of 'late.mp4' shows no face; using frame ";
+  const size_t at = r.out.find(note);
+  ASSERT_NE(at, std::string::npos) << r.out;
+  const int used = std::atoi(r.out.c_str() + at + note.size());
+  std::printf("neutral frame used: %d\n", used);
+  EXPECT_GE(used, 20);
+  EXPECT_LT(used, 28);
+  EXPECT_NE(Probe(out).find("video,10/1,28"), std::string::npos) << Probe(out);
+  // In-process, the same choice reaches the result.
+  AnimateOptions o;
+  o.source = Portrait();
+  o.driver = clip.string();
+  o.output = (dir / "again.mp4").string();
+  o.width = o.height = 32;
+  o.max_frames = 2;
+  o.backend.renderer = "morphable";
+  RunContext ctx;
+  const AnimateResult result = RunAnimation(o, ctx);
+  EXPECT_EQ(result.neutral_frame, used);
+  EXPECT_NE(result.driver_note.find("first frame with a face"), std::string::npos) << result.driver_note;
+}
+
+TEST(Animate, AnOutOfRangeNeutralFrameIsAnOptionError) {
+  TempDir dir;
+  const fs::path clip = MakeClip(dir, "short.mp4", 6, 10, false);
+  const auto r = Studio("animate '" + Portrait() + "' '" + clip.string() + "' --neutral-frame 6 -o '" +
+                        (dir / "o.mp4").string() + "' --renderer morphable --width 64 --height 64");
+  EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+  EXPECT_NE(r.err.find("--neutral-frame 6 is past the end"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "o.mp4"));
 }
 
 }  // namespace

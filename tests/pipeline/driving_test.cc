@@ -1,9 +1,15 @@
-// Drivers and the animation plan: keyframe interpolation, relative transfer, smoothing and
-// the camera of each export view, checked against hand-computed values.
+// Drivers and the animation plan: keyframe interpolation, relative transfer, smoothing, the
+// camera of each export view, and the one seekable video driver (DrivingVideo: hold on a
+// missed face, the neutral-frame rule, seeking = playback), checked against hand-computed
+// values on clips written here whose frames encode what a stand-in analyser "measures".
 #include <gtest/gtest.h>
+
+#include <opencv2/videoio.hpp>
 
 #include <cmath>
 #include <fstream>
+#include <map>
+#include <random>
 
 #include "common/temp_dir.h"
 #include "core/pipeline/animate.h"
@@ -14,6 +20,7 @@ namespace avatar {
 namespace {
 
 using avatar::testing::TempDir;
+namespace fs = std::filesystem;
 
 TEST(Keyframes, InterpolateLinearlyAndHoldTheEnds) {
   KeyframeDriver::Key a, b;
@@ -156,6 +163,264 @@ TEST(PlanFrame, EachViewModeGivesTheExpectedCamera) {
   // Controls are clamped to [0,1].
   sample.expression.controls["smile"] = 5.0f;
   EXPECT_FLOAT_EQ(PlanFrame(source, plan, &sample, true, 0, 8).expression.Get("smile"), 1.0f);
+}
+
+// ----------------------------------------------------------------------------- DrivingVideo
+
+// Frame k of a test clip is flat grey 40 + 20 * level, or black (level < 0: "no face").
+fs::path WriteClip(const TempDir& dir, const std::string& name, const std::vector<int>& levels, double fps = 10.0) {
+  const fs::path path = dir / name;
+  cv::VideoWriter writer(path.string(), cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), fps, cv::Size(32, 32));
+  EXPECT_TRUE(writer.isOpened()) << "OpenCV cannot write MJPG";
+  for (int level : levels) writer.write(cv::Mat(32, 32, CV_8UC3, cv::Scalar::all(level < 0 ? 0 : 40 + 20 * level)));
+  writer.release();
+  return path;
+}
+
+// "Measures" the grey level: yaw = 2 * level, pitch = -level, coefficients {level, -level};
+// a black frame has no face. Counts its calls when given a counter.
+class LevelAnalyzer : public FrameAnalyzer {
+ public:
+  explicit LevelAnalyzer(int* calls = nullptr) : calls_(calls) {}
+  FrameMeasurement Measure(const cv::Mat& bgr, RunContext&) override {
+    if (calls_ != nullptr) ++*calls_;
+    FrameMeasurement m;
+    const double grey = cv::mean(bgr)[0];
+    if (grey < 20.0) return m;
+    const int level = static_cast<int>(std::lround((grey - 40.0) / 20.0));
+    m.face_found = true;
+    m.pose.yaw = 2.0 * level;
+    m.pose.pitch = -level;
+    m.coefficients = {static_cast<float>(level), static_cast<float>(-level)};
+    return m;
+  }
+
+ private:
+  int* calls_;
+};
+
+DrivingOptions Unsmoothed() {
+  DrivingOptions o;
+  o.smoothing = 0.0;
+  return o;
+}
+
+TEST(DrivingVideo, MissedFacesHoldTheLastFaceSeen) {
+  TempDir dir;
+  //                                       0  1   2   3  4   5
+  const fs::path clip = WriteClip(dir, "c.avi", {1, 2, -1, -1, 5, -1});
+  RunContext ctx;
+  DrivingVideo v(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  EXPECT_EQ(v.FrameCount(), 6);
+  EXPECT_EQ(v.NeutralFrame(), 0);
+  EXPECT_TRUE(v.NeutralNote().empty());
+  const std::vector<double> yaw = {0, 2, 2, 2, 8, 8};  // Relative to frame 0 (level 1).
+  const std::vector<bool> face = {true, true, false, false, true, false};
+  for (int64_t i = 0; i < 6; ++i) {
+    DrivingSample s;
+    ASSERT_TRUE(v.At(i, s, ctx));
+    EXPECT_DOUBLE_EQ(s.pose.yaw, yaw[i]) << "frame " << i;
+    EXPECT_DOUBLE_EQ(s.pose.pitch, -yaw[i] / 2) << "frame " << i;
+    ASSERT_EQ(s.expression.coefficients.size(), 2u);
+    EXPECT_FLOAT_EQ(s.expression.coefficients[0], static_cast<float>(yaw[i] / 2)) << "frame " << i;
+    EXPECT_EQ(s.face_found, face[i]) << "frame " << i;
+  }
+  DrivingSample s;
+  EXPECT_FALSE(v.At(6, s, ctx));  // Past the end.
+  EXPECT_FALSE(v.At(-1, s, ctx));
+}
+
+TEST(DrivingVideo, SeekingGivesWhatPlaybackGives) {
+  TempDir dir;
+  std::vector<int> levels;
+  for (int i = 0; i < 60; ++i) levels.push_back((i % 7 == 3 || (i >= 30 && i < 38)) ? -1 : i % 9);
+  const fs::path clip = WriteClip(dir, "long.avi", levels);
+  RunContext ctx;
+  DrivingVideo played(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  std::vector<DrivingSample> expected(levels.size());
+  for (size_t i = 0; i < levels.size(); ++i) ASSERT_TRUE(played.At(static_cast<int64_t>(i), expected[i], ctx));
+  // A fresh driver visited in random order (scrubbing) gives every frame the same sample,
+  // a held one included (the nearest earlier face is looked up).
+  DrivingVideo scrubbed(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  std::vector<int64_t> order(levels.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int64_t>(i);
+  std::shuffle(order.begin(), order.end(), std::mt19937(7));
+  int held = 0;
+  for (int64_t i : order) {
+    DrivingSample s;
+    ASSERT_TRUE(scrubbed.At(i, s, ctx));
+    EXPECT_EQ(s.pose, expected[i].pose) << "frame " << i;
+    EXPECT_EQ(s.expression, expected[i].expression) << "frame " << i;
+    EXPECT_EQ(s.face_found, expected[i].face_found) << "frame " << i;
+    held += s.face_found ? 0 : 1;
+  }
+  EXPECT_EQ(held, 16);  // 8 frames with i % 7 == 3 outside 30..37, plus 30..37.
+  EXPECT_DOUBLE_EQ(expected[37].pose.yaw, expected[29].pose.yaw);  // 29 is the last face before the gap.
+}
+
+TEST(DrivingVideo, TheExportDriverIsTheSameDriverPlayedForward) {
+  TempDir dir;
+  const fs::path clip = WriteClip(dir, "c.avi", {2, 3, -1, 6, -1, -1, 1, 8, 4});
+  DrivingOptions o;
+  o.smoothing = 0.4;
+  o.neutral_frame = 1;
+  RunContext ctx;
+  VideoDriver exported(clip, std::make_unique<LevelAnalyzer>(), o, ctx);
+  DrivingVideo preview(clip, std::make_unique<LevelAnalyzer>(), o, ctx);
+  DrivingSample a, b;
+  int64_t n = 0;
+  while (exported.Next(a, ctx)) {
+    ASSERT_TRUE(preview.At(n, b, ctx));
+    EXPECT_EQ(a.pose, b.pose) << "frame " << n;
+    EXPECT_EQ(a.expression, b.expression) << "frame " << n;
+    EXPECT_EQ(a.face_found, b.face_found) << "frame " << n;
+    ++n;
+  }
+  EXPECT_EQ(n, 9);
+  // Smoothing is on: frame 3 (level 6, neutral level 3) is on its way from the held 0 to 6.
+  DrivingVideo again(clip, std::make_unique<LevelAnalyzer>(), o, ctx);
+  for (int64_t i = 0; i <= 3; ++i) ASSERT_TRUE(again.At(i, b, ctx));
+  EXPECT_GT(b.pose.yaw, 0.0);
+  EXPECT_LT(b.pose.yaw, 6.0);
+  // A jump restarts the smoothing: frame 3 alone is the raw offset.
+  ASSERT_TRUE(again.At(7, b, ctx));
+  ASSERT_TRUE(again.At(3, b, ctx));
+  EXPECT_DOUBLE_EQ(b.pose.yaw, 6.0);
+}
+
+TEST(DrivingVideo, ANeutralFrameWithoutAFaceBecomesTheFirstFrameWithOne) {
+  TempDir dir;
+  const fs::path clip = WriteClip(dir, "lead.avi", {-1, -1, -1, 3, 4, -1, 6});
+  RunContext ctx;
+  DrivingVideo v(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  EXPECT_EQ(v.NeutralFrame(), 3);
+  EXPECT_NE(v.NeutralNote().find("neutral frame 0"), std::string::npos) << v.NeutralNote();
+  EXPECT_NE(v.NeutralNote().find("using frame 3 (0.30 s)"), std::string::npos) << v.NeutralNote();
+  EXPECT_NE(v.NeutralNote().find("lead.avi"), std::string::npos) << v.NeutralNote();
+  DrivingSample s;
+  ASSERT_TRUE(v.At(0, s, ctx));  // Before the first face: the neutral frame is held.
+  EXPECT_FALSE(s.face_found);
+  EXPECT_DOUBLE_EQ(s.pose.yaw, 0.0);
+  EXPECT_EQ(s.expression.coefficients, (std::vector<float>{0.0f, 0.0f}));
+  ASSERT_TRUE(v.At(4, s, ctx));
+  EXPECT_DOUBLE_EQ(s.pose.yaw, 2.0);
+  ASSERT_TRUE(v.At(5, s, ctx));
+  EXPECT_DOUBLE_EQ(s.pose.yaw, 2.0);  // Held.
+  // A requested frame with a face is used as it is, without a note.
+  DrivingOptions o = Unsmoothed();
+  o.neutral_frame = 6;
+  v.SetOptions(o, ctx);
+  EXPECT_EQ(v.NeutralFrame(), 6);
+  EXPECT_TRUE(v.NeutralNote().empty());
+  ASSERT_TRUE(v.At(3, s, ctx));
+  EXPECT_DOUBLE_EQ(s.pose.yaw, -6.0);
+  // Absolute mode has no neutral frame; leading frames hold the first face.
+  o.relative = false;
+  v.SetOptions(o, ctx);
+  EXPECT_EQ(v.NeutralFrame(), -1);
+  ASSERT_TRUE(v.At(1, s, ctx));
+  EXPECT_DOUBLE_EQ(s.pose.yaw, 6.0);
+  EXPECT_TRUE(s.expression.coefficients_absolute);
+  // The export reports the same choice.
+  VideoDriver exported(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  EXPECT_EQ(exported.Video().NeutralFrame(), 3);
+  DrivingVideo fresh(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  EXPECT_EQ(exported.Video().NeutralNote(), fresh.NeutralNote());
+}
+
+TEST(DrivingVideo, OutOfRangeOrFacelessNeutralFramesAreRefusedClearly) {
+  TempDir dir;
+  const fs::path clip = WriteClip(dir, "short.avi", {1, 2, 3});
+  const fs::path blank = WriteClip(dir, "blank.avi", {-1, -1, -1, -1});
+  RunContext ctx;
+  DrivingOptions o = Unsmoothed();
+  o.neutral_frame = 3;
+  for (int pass = 0; pass < 2; ++pass) {
+    try {
+      if (pass == 0) DrivingVideo refused(clip, std::make_unique<LevelAnalyzer>(), o, ctx);
+      if (pass == 1) VideoDriver refused(clip, std::make_unique<LevelAnalyzer>(), o, ctx);
+      ADD_FAILURE() << "neutral frame 3 of 3 frames was accepted";
+    } catch (const InvalidOptions& e) {
+      EXPECT_NE(std::string(e.what()).find("--neutral-frame 3 is past the end"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("0..2"), std::string::npos) << e.what();
+    }
+  }
+  // Changing the options of a loaded driver to an invalid frame keeps the old options.
+  DrivingVideo v(clip, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+  EXPECT_THROW(v.SetOptions(o, ctx), InvalidOptions);
+  EXPECT_EQ(v.NeutralFrame(), 0);
+  DrivingSample s;
+  ASSERT_TRUE(v.At(2, s, ctx));
+  EXPECT_DOUBLE_EQ(s.pose.yaw, 4.0);
+  // No face anywhere: relative transfer is impossible and says so; absolute runs neutral.
+  try {
+    DrivingVideo refused(blank, std::make_unique<LevelAnalyzer>(), Unsmoothed(), ctx);
+    ADD_FAILURE() << "a clip without a face was accepted for relative transfer";
+  } catch (const InvalidInput& e) {
+    EXPECT_NE(std::string(e.what()).find("no face found in"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("blank.avi"), std::string::npos) << e.what();
+  }
+  DrivingOptions absolute = Unsmoothed();
+  absolute.relative = false;
+  DrivingVideo a(blank, std::make_unique<LevelAnalyzer>(), absolute, ctx);
+  ASSERT_TRUE(a.At(1, s, ctx));
+  EXPECT_FALSE(s.face_found);
+  EXPECT_TRUE(s.expression.coefficients.empty());
+  // Without an analyser the video gives timing only, whatever the neutral frame.
+  DrivingVideo timing(clip, nullptr, o, ctx);
+  EXPECT_FALSE(timing.Measured());
+  ASSERT_TRUE(timing.At(1, s, ctx));
+  EXPECT_TRUE(s.expression.coefficients.empty());
+}
+
+TEST(DrivingVideo, EachFrameIsMeasuredOnce) {
+  TempDir dir;
+  const fs::path clip = WriteClip(dir, "c.avi", {1, -1, 3, 4, -1, -1, 7, 8});
+  int calls = 0;
+  RunContext ctx;
+  DrivingVideo v(clip, std::make_unique<LevelAnalyzer>(&calls), Unsmoothed(), ctx);
+  DrivingSample s;
+  for (int round = 0; round < 3; ++round) {
+    for (int64_t i : {5, 2, 0, 7, 1, 3, 4, 6}) {
+      cv::Mat picture;
+      ASSERT_TRUE(v.At(i, s, ctx, &picture));
+      EXPECT_EQ(picture.size(), cv::Size(32, 32));
+    }
+  }
+  EXPECT_EQ(calls, 8);
+}
+
+TEST(Compose, TheViewIsTheSourcePoseTurnedByTheUserAndTheDriver) {
+  const ViewPose source{4.0, -2.0, 1.0, 1.0};
+  const ViewPose user{10.0, 5.0, -3.0, 1.5};
+  const ViewPose driver{-1.0, 2.0, 0.5, 1.0};
+  ViewPose v = ComposeView(source, user, &driver);
+  EXPECT_DOUBLE_EQ(v.yaw, 13.0);
+  EXPECT_DOUBLE_EQ(v.pitch, 5.0);
+  EXPECT_DOUBLE_EQ(v.roll, -1.5);
+  EXPECT_DOUBLE_EQ(v.zoom, 1.5);
+  v = ComposeView(source, user, nullptr);
+  EXPECT_DOUBLE_EQ(v.yaw, 14.0);
+  EXPECT_DOUBLE_EQ(v.roll, -2.0);
+  // The user's controls plus the driver's, clamped; the driver's coefficients.
+  FrameExpression mine;
+  mine.controls["smile"] = 0.75f;
+  DrivingSample s;
+  s.pose = driver;
+  s.expression.controls["smile"] = 0.5f;
+  s.expression.controls["jawOpen"] = -0.5f;
+  s.expression.coefficients = {0.25f, -0.5f};
+  s.expression.coefficients_absolute = true;
+  const FrameRequest r = ComposeFrame(source, user, mine, &s, true, 48, 32);
+  EXPECT_EQ(r.width, 48);
+  EXPECT_EQ(r.height, 32);
+  EXPECT_DOUBLE_EQ(r.view.yaw, 13.0);
+  EXPECT_FLOAT_EQ(r.expression.Get("smile"), 1.0f);
+  EXPECT_FLOAT_EQ(r.expression.Get("jawOpen"), 0.0f);
+  EXPECT_EQ(r.expression.coefficients, s.expression.coefficients);
+  EXPECT_TRUE(r.expression.coefficients_absolute);
+  EXPECT_DOUBLE_EQ(ComposeFrame(source, user, mine, &s, false, 48, 32).view.yaw, 14.0);  // Pose not followed.
+  EXPECT_TRUE(ComposeFrame(source, user, mine, nullptr, true, 48, 32).expression.coefficients.empty());
 }
 
 }  // namespace

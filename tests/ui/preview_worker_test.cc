@@ -1,14 +1,31 @@
 // The preview worker renders off the GUI thread and coalesces requests: a burst of slider
 // moves renders a handful of frames, and the last frame shown is the last state requested.
+// Its driving video is the export's driver: given the same clip (missed faces included) the
+// preview and an export ask the source for the same camera and expression on every frame.
+// LibTorch (via the morphable model) first: Qt's `slots` macro breaks its headers.
+#include "morphable/morphable_test_util.h"
+
+#include <QSettings>
 #include <QSignalSpy>
+#include <QStandardPaths>
+#include <QTemporaryDir>
 #include <QtTest/QtTest>
 
 #include <atomic>
 #include <chrono>
+#include <filesystem>
+#include <mutex>
 #include <thread>
 
+#include "core/io/data_paths.h"
+#include "core/io/video_io.h"
+#include "core/pipeline/animate.h"
 #include "core/pipeline/frame_source.h"
+#include "core/pipeline/studio_backend.h"
+#include "ui/main_window.h"
+#include "ui/panels.h"
 #include "ui/preview_worker.h"
+#include "ui/studio.h"
 
 namespace avatar::ui {
 namespace {
@@ -31,6 +48,42 @@ class SlowSource : public FrameSource {
   }
   mutable std::atomic<int> calls{0};
 };
+
+// Records every request it renders (a small black frame); has a pose of its own so the
+// composition with the source pose is exercised.
+class RecordingSource : public FrameSource {
+ public:
+  std::string Label() const override { return "recorder"; }
+  bool SupportsPose() const override { return true; }
+  std::vector<std::string> ExpressionControls() const override { return {}; }
+  int CoefficientCount() const override { return 12; }
+  ViewPose SourcePose() const override { return {6.0, -3.0, 2.0, 1.0}; }
+  RenderedFrame Render(const FrameRequest& r, RunContext&) const override {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      requests.push_back(r);
+    }
+    RenderedFrame f;
+    f.bgr = cv::Mat(r.height, r.width, CV_8UC3, cv::Scalar::all(0));
+    f.alpha = cv::Mat(r.height, r.width, CV_8UC1, cv::Scalar(255));
+    return f;
+  }
+  mutable std::mutex mutex;
+  mutable std::vector<FrameRequest> requests;
+};
+
+// `frames` frames of the bundled face clip at 10 fps, 400x300, with the frames listed in
+// `black` (an ffmpeg expression over n) painted black: no face there.
+QString MakeClip(const QTemporaryDir& dir, const QString& name, int frames, const std::string& black) {
+  const std::string source =
+      DataPaths::Resolve().Require("samples/cap13_edit2.mp4", "a sample driving clip (run scripts/setup)").string();
+  const std::string out = dir.filePath(name).toStdString();
+  const int rc = RunProgram("ffmpeg", {"-nostdin", "-y", "-v", "error", "-i", source, "-an", "-vf",
+                                       "fps=10,drawbox=enable='" + black + "':x=0:y=0:w=iw:h=ih:color=black:t=fill",
+                                       "-frames:v", std::to_string(frames), "-c:v", "libx264", "-pix_fmt", "yuv420p",
+                                       out});
+  return rc == 0 ? QString::fromStdString(out) : QString();
+}
 
 }  // namespace
 
@@ -92,6 +145,133 @@ class PreviewWorkerTest : public QObject {
     QVERIFY(failed.first().at(0).toString().contains(QStringLiteral("16..4096")));
   }
 
+  void initTestCase() {
+    // A synthetic morphable model (as the studio test): the real tracking and fit path
+    // without depending on the committed model.
+    QVERIFY(model_dir_.isValid());
+    const std::string model = model_dir_.filePath(QStringLiteral("synthetic.avmm")).toStdString();
+    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(model);
+    qputenv("AVATAR_MORPHABLE_MODEL", QByteArray::fromStdString(model));
+    QStandardPaths::setTestModeEnabled(true);
+    SetApplicationIdentity();
+    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
+    QSettings().clear();
+  }
+
+  // Acceptance (issue 15): the preview and the export read the driver through one path.
+  void previewAndExportGiveTheSameFramesMissedFacesIncluded() {
+    QTemporaryDir dir;
+    QVERIFY(dir.isValid());
+    const int kFrames = 12;
+    const QString clip = MakeClip(dir, QStringLiteral("gaps.mp4"), kFrames, "between(n,3,5)+eq(n,9)");
+    QVERIFY2(!clip.isEmpty(), "ffmpeg could not make the test clip");
+    DrivingOptions driving;  // Relative, neutral frame 0, the default smoothing.
+    // The export: `animate`'s path, into a PNG sequence.
+    RecordingSource exported;
+    {
+      RunContext ctx;
+      std::unique_ptr<Driver> driver = OpenDriver(clip.toStdString(), DrivingAnalyzers({}), driving, ctx);
+      AnimationPlan plan;
+      plan.width = plan.height = 32;
+      ExportOptions out;
+      out.output = dir.filePath(QStringLiteral("frames")).toStdString();
+      const ExportStats stats = ExportAnimation(exported, driver.get(), plan, out, ctx);
+      QCOMPARE(stats.frames, int64_t{kFrames});
+    }
+    // The preview, played frame by frame, following the driver's pose, with the user's view
+    // at rest.
+    auto previewed = std::make_shared<RecordingSource>();
+    PreviewWorker worker;
+    worker.setSource(previewed);
+    worker.setAnalyzerFactory(DrivingAnalyzers({}));
+    QSignalSpy loaded(&worker, &PreviewWorker::driverLoaded);
+    QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    worker.loadDriver(clip, driving);
+    QVERIFY(loaded.wait(60000));
+    QCOMPARE(loaded.first().at(1).toLongLong(), qint64{kFrames});
+    std::vector<bool> face;
+    for (int i = 0; i < kFrames; ++i) {
+      PreviewRequest r;
+      r.frame.width = r.frame.height = 32;
+      r.driver_frame = i;
+      r.driver_pose = true;
+      const quint64 serial = worker.request(r);
+      QTRY_VERIFY_WITH_TIMEOUT(!frames.isEmpty() && frames.last().at(0).value<PreviewFrame>().serial == serial, 60000);
+      face.push_back(frames.last().at(0).value<PreviewFrame>().driver_face_found);
+    }
+    QCOMPARE(static_cast<int>(previewed->requests.size()), kFrames);
+    QCOMPARE(static_cast<int>(exported.requests.size()), kFrames);
+    int moved = 0;
+    for (int i = 0; i < kFrames; ++i) {
+      const FrameRequest& a = exported.requests[i];
+      const FrameRequest& b = previewed->requests[i];
+      const bool blank = (i >= 3 && i <= 5) || i == 9;
+      QVERIFY2(face[i] == !blank, qPrintable(QStringLiteral("frame %1: face_found %2").arg(i).arg(face[i])));
+      QVERIFY2(a.view == b.view, qPrintable(QStringLiteral("frame %1: export yaw %2 pitch %3, preview yaw %4 pitch %5")
+                                                .arg(i)
+                                                .arg(a.view.yaw)
+                                                .arg(a.view.pitch)
+                                                .arg(b.view.yaw)
+                                                .arg(b.view.pitch)));
+      QVERIFY2(a.expression == b.expression, qPrintable(QStringLiteral("frame %1: expressions differ").arg(i)));
+      QCOMPARE(static_cast<int>(a.expression.coefficients.size()), 12);
+      for (float c : a.expression.coefficients) QVERIFY(std::isfinite(c));
+      QVERIFY(std::isfinite(a.view.yaw) && std::isfinite(a.view.pitch) && std::isfinite(a.view.roll));
+      if (i > 0 && !(a.view == exported.requests[0].view)) ++moved;
+    }
+    // Frame 0 is the neutral frame: the source's own pose, exactly.
+    QCOMPARE(exported.requests[0].view.yaw, 6.0);
+    QCOMPARE(exported.requests[0].view.pitch, -3.0);
+    qInfo("%d frames: preview == export on all, %d of them away from the neutral pose", kFrames, moved);
+    QVERIFY2(moved > 0, "the driver's head pose never reached the frames");
+  }
+
+  // A driver whose first 2 s show no face: the first frame with a face becomes the neutral
+  // frame, and the worker says so; an out-of-range neutral frame is refused with a message.
+  void aFacelessNeutralFrameIsReplacedAndReported() {
+    const QString clip = LateClip();
+    QVERIFY2(!clip.isEmpty(), "ffmpeg could not make the test clip");
+    PreviewWorker worker;
+    worker.setSource(std::make_shared<RecordingSource>());
+    worker.setAnalyzerFactory(DrivingAnalyzers({}));
+    QSignalSpy chosen(&worker, &PreviewWorker::drivingNeutralChosen);
+    QSignalSpy loaded(&worker, &PreviewWorker::driverLoaded);
+    QSignalSpy failed(&worker, &PreviewWorker::driverFailed);
+    worker.loadDriver(clip, DrivingOptions{});
+    QVERIFY(loaded.wait(60000));
+    QCOMPARE(chosen.count(), 1);
+    const qint64 frame = chosen.first().at(0).toLongLong();
+    const QString note = chosen.first().at(1).toString();
+    qInfo("neutral frame used: %lld (%s)", static_cast<long long>(frame), qPrintable(note));
+    QVERIFY2(frame >= 20 && frame < 24, qPrintable(note));
+    QVERIFY2(note.contains(QStringLiteral("neutral frame 0")) && note.contains(QStringLiteral("first frame with a face")),
+             qPrintable(note));
+    DrivingOptions past;
+    past.neutral_frame = 24;
+    worker.loadDriver(clip, past);
+    QVERIFY(failed.wait(60000));
+    QVERIFY2(failed.first().at(1).toString().contains(QStringLiteral("past the end")),
+             qPrintable(failed.first().at(1).toString()));
+  }
+
+  // The studio window shows the driver's choice: in the status bar and in the driving panel's
+  // neutral-frame box.
+  void theStudioShowsTheNeutralFrameItUses() {
+    const QString clip = LateClip();
+    QVERIFY2(!clip.isEmpty(), "ffmpeg could not make the test clip");
+    MainWindow w;
+    w.setDialogsEnabled(false);
+    QSignalSpy loaded(&w, &MainWindow::driverLoaded);
+    w.openDriver(clip);
+    QVERIFY(loaded.wait(60000));
+    qInfo("status: %s", qPrintable(w.statusText()));
+    QVERIFY2(w.statusText().contains(QStringLiteral("late.mp4 loaded")), qPrintable(w.statusText()));
+    QVERIFY2(w.statusText().contains(QStringLiteral("first frame with a face")), qPrintable(w.statusText()));
+    const int64_t used = w.drivingPanel()->options().neutral_frame;
+    QVERIFY2(used >= 20 && used < 24, qPrintable(QString::number(used)));
+    QVERIFY2(w.statusText().contains(QStringLiteral("using frame %1").arg(used)), qPrintable(w.statusText()));
+  }
+
   void badDriverIsReportedNotThrown() {
     PreviewWorker worker;
     QSignalSpy failed(&worker, &PreviewWorker::driverFailed);
@@ -99,6 +279,19 @@ class PreviewWorkerTest : public QObject {
     QVERIFY(failed.wait(5000));
     QVERIFY(failed.first().at(1).toString().contains(QStringLiteral("clip.mp4")));
   }
+
+ private:
+  // 24 frames at 10 fps whose first 2 s (20 frames) are black, made once.
+  QString LateClip() {
+    if (late_clip_.isEmpty() && clip_dir_.isValid()) {
+      late_clip_ = MakeClip(clip_dir_, QStringLiteral("late.mp4"), 24, "lt(n,20)");
+    }
+    return late_clip_;
+  }
+
+  QTemporaryDir model_dir_;
+  QTemporaryDir clip_dir_;
+  QString late_clip_;
 };
 
 }  // namespace avatar::ui
