@@ -441,7 +441,8 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
   }
 
   // Rows.
-  std::vector<RowState> rows(5);
+  constexpr int kRows = 6;
+  std::vector<RowState> rows(kRows);
   rows[0].row = {"baseline", "morphable baseline", true, "", static_cast<int>(res), {}, {}, {}};
   rows[1].row = {"canonical", "I_c", true, "", static_cast<int>(res), {}, {}, {}};
   rows[2].row = {"expression", "I_c+e", true, "", static_cast<int>(res), {}, {}, {}};
@@ -452,6 +453,8 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     rows[4].row.available = false;
     rows[4].row.note = "not trained (checkpoint has sr_trained = false: stage-I weights)";
   }
+  // What the app shows at sr_size when the SR is untrained, and the yardstick a trained SR must beat.
+  rows[5].row = {"upsampled", "I_c+e+p bicubic", true, "", config.sr_size, {}, {}, {}};
   std::unique_ptr<MorphableBaseline> baseline;
   BaselineData records;
   if (!options.baseline) {
@@ -499,7 +502,7 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     const torch::Tensor matte_r = train::ResizeTo(b.target_matte, res);
 
     // Neural renders at the target camera (deterministic).
-    std::vector<torch::Tensor> renders(5);
+    std::vector<torch::Tensor> renders(kRows);
     const torch::Tensor tc = model->CanonicalPlanes(source);
     const torch::Tensor tce = tc + model->ExpressionPlanes(expression_image);
     const torch::Tensor tp = model->AppearancePlanes(source, eye_mouth, source_matte, tc, source_cam).planes;
@@ -507,6 +510,12 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     renders[2] = model->Render(tce, target_cam, 0, true).rgb;
     renders[3] = model->Render(tce + tp, target_cam, 0, true).rgb;
     if (sr) renders[4] = model->SuperResolve(renders[3]);
+    renders[5] = torch::nn::functional::interpolate(
+                     renders[3], torch::nn::functional::InterpolateFuncOptions()
+                                     .size(std::vector<int64_t>{config.sr_size, config.sr_size})
+                                     .mode(torch::kBicubic)
+                                     .align_corners(false))
+                     .clamp(-1.0, 1.0);
     torch::Tensor baseline_full;  // [B,3,S,S]
     if (baseline) {
       std::vector<torch::Tensor> imgs;
@@ -519,10 +528,10 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     }
 
     // Image metrics per row.
-    std::vector<train::ImageMetrics> full_m(5), masked_m(5);
-    for (int r = 0; r < 5; ++r) {
+    std::vector<train::ImageMetrics> full_m(kRows), masked_m(kRows);
+    for (int r = 0; r < kRows; ++r) {
       if (!rows[r].row.available) continue;
-      const bool is_sr = r == 4;
+      const bool is_sr = r == 4 || r == 5;
       const torch::Tensor tgt = is_sr ? train::ResizeTo(target_full, config.sr_size) : target_r;
       const torch::Tensor mask = is_sr ? train::ResizeTo(b.target_matte, config.sr_size) : matte_r;
       if (perceptual) {
@@ -545,7 +554,7 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
       pj["kind"] = KindName(b.kind[j].item<int64_t>());
       pj["identity"] = b.identity[j].item<int64_t>();
       if (face_metrics) pj["target_face"] = target_face.found;
-      for (int r = 0; r < 5; ++r) {
+      for (int r = 0; r < kRows; ++r) {
         if (!rows[r].row.available) continue;
         RowPair rp;
         rp.kind = pj["kind"].get<std::string>();

@@ -102,7 +102,7 @@ struct EvaluateReport {
   int pairs = 0;                          // pairs evaluated
   std::map<std::string, int> pairs_by_kind;
   std::vector<int64_t> pair_indices;      // indices into the split
-  std::vector<EvalRow> rows;              // baseline, canonical, expression, full, sr
+  std::vector<EvalRow> rows;              // baseline, canonical, expression, full, sr, upsampled (bicubic full)
   std::map<std::string, std::vector<EvalRow>> rows_by_kind;  // the same rows per pair kind
   double seconds = 0.0;
   std::string json_path, markdown_path, contact_path;

@@ -93,7 +93,7 @@ TEST_F(EvalTest, CommandWritesEveryRowWithFiniteMetricsTableAndContactSheet) {
   EXPECT_EQ(j["pairs"].get<int>(), report_.val_pairs);
   EXPECT_EQ(j["checkpoint"]["sr_trained"].get<bool>(), false);
   const std::string md = ReadFileBytes(out / "eval.md");
-  ASSERT_EQ(j["rows"].size(), 5u);
+  ASSERT_EQ(j["rows"].size(), 6u);
   for (const auto& row : j["rows"]) {
     const std::string key = row["key"];
     EXPECT_NE(md.find("| " + row["name"].get<std::string>() + " |"), std::string::npos) << key << " not in\n" << md;
@@ -180,9 +180,9 @@ TEST_F(EvalTest, RenderPsnrEqualsAnIndependentPsnr) {
   EXPECT_NEAR(report.rows[3].full.at("psnr"), mean_full, 1e-3);
   // The tiny dataset has photo pairs only: the per-kind rows are the overall rows.
   ASSERT_EQ(report.rows_by_kind.size(), 1u);
-  ASSERT_EQ(report.rows_by_kind.at("photo").size(), 5u);
+  ASSERT_EQ(report.rows_by_kind.at("photo").size(), 6u);
   EXPECT_NEAR(report.rows_by_kind.at("photo")[3].full.at("psnr"), mean_full, 1e-3);
-  EXPECT_EQ(j["rows_by_kind"]["photo"].size(), 5u);
+  EXPECT_EQ(j["rows_by_kind"]["photo"].size(), 6u);
   EXPECT_EQ(report.rows[3].key, "full");
   // Face metrics off: no face numbers, and no perceptual column.
   EXPECT_EQ(report.rows[3].face.pairs, 0);
@@ -201,12 +201,17 @@ TEST_F(EvalTest, TrainedSrIsMeasuredAtItsResolution) {
   RunContext ctx;
   const EvaluateReport report = RunEvaluation(o, ctx);
   EXPECT_EQ(report.pairs, 1);
-  ASSERT_EQ(report.rows.size(), 5u);
+  ASSERT_EQ(report.rows.size(), 6u);
   const EvalRow& sr = report.rows[4];
   ASSERT_TRUE(sr.available);
   EXPECT_EQ(sr.resolution, ModelConfig::Tiny().sr_size);
   EXPECT_TRUE(std::isfinite(sr.full.at("psnr")));
   EXPECT_TRUE(std::isfinite(sr.masked.at("perceptual")));
+  // The bicubic upsampling of I_c+e+p, at the SR's size: the yardstick the SR must beat.
+  const EvalRow& up = report.rows[5];
+  ASSERT_TRUE(up.available);
+  EXPECT_EQ(up.resolution, ModelConfig::Tiny().sr_size);
+  EXPECT_TRUE(std::isfinite(up.full.at("psnr")));
   const cv::Mat contact = cv::imread(report.contact_path);
   EXPECT_EQ(contact.cols, 7 * 128);
 }
