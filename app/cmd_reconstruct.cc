@@ -1,8 +1,11 @@
 #include "app/cmd_reconstruct.h"
 
+#include <iomanip>
 #include <iostream>
+#include <sstream>
 
 #include "core/io/image_io.h"
+#include "core/pipeline/source_analysis.h"
 #include "core/util/error.h"
 #include "core/util/timer.h"
 
@@ -12,6 +15,7 @@ void ReconstructOptions::Validate() const {
   AVATAR_CHECK_OPTION(!input.empty()) << "missing IMAGE: give the portrait photo to reconstruct";
   AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
   session.Validate();
+  refine.Validate();
   common.Validate();
 }
 
@@ -27,7 +31,30 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
               << so.seed << "); the avatar will look like noise.\n";
   }
   const cv::Mat image = LoadImageBgr(options.input);
-  const Avatar avatar = session.Reconstruct(image, ctx);
+  Avatar avatar;
+  if (!options.refine.Enabled()) {
+    avatar = session.Reconstruct(image, ctx);
+  } else {
+    SourceAnalysis analysis;
+    {
+      RunContext::ProgressRange range(ctx, 0.0, 0.4);
+      analysis = AnalyseSource(image, so.data_dir, ctx);
+    }
+    {
+      RunContext::ProgressRange range(ctx, 0.4, 0.5);
+      avatar = session.ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
+    }
+    RunContext::ProgressRange range(ctx, 0.5, 1.0);
+    RefineOptions refine = options.refine;
+    refine.data_dir = options.common.data_dir;
+    const RefineResult r = RefineAvatar(session, avatar, analysis, refine, ctx);
+    avatar = r.avatar;
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(2) << "Refined the planes on the source view: " << r.steps << " steps in "
+         << r.seconds << " s (stopped by " << r.stopped_by << "), source-view PSNR " << r.psnr_before << " -> "
+         << r.psnr_after << " dB (masked by the matte, " << info.render_size << " px render).\n";
+    std::cout << line.str();
+  }
   session.SaveAvatar(avatar, options.output);
   std::cout << "Reconstructed '" << options.input << "' with the " << DescribeModel(info) << " in " << timer.Seconds()
             << " s and wrote '" << options.output << "'.\n";

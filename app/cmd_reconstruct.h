@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "app/commands.h"
+#include "core/pipeline/refine.h"
 #include "core/pipeline/session.h"
 
 namespace avatar::app {
@@ -19,12 +20,20 @@ struct ReconstructOptions {
   std::string output = "portrait.avatar";
   // Model selection.
   SessionOptions session;
+  // Optional per-portrait refinement of the planes (--refine-steps, --refine-seconds, ...).
+  RefineOptions refine = NoRefinement();
   // Threads, data folder, verbosity.
   CommonOptions common;
 
+  static RefineOptions NoRefinement() {
+    RefineOptions r;
+    r.steps = 0;
+    return r;
+  }
   template <typename V>
   void Visit(V&& v) {
     v("output", output, "Avatar file to write (.avatar)", 'o');
+    refine.Visit(v);
     session.Visit(v);
     common.Visit(v);
   }
