@@ -15,6 +15,7 @@
 #include "core/io/resources.h"
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
+#include "core/pipeline/session_access.h"
 #include "core/pipeline/source_analysis.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
@@ -33,6 +34,7 @@ struct AvatarState {
   std::array<float, 25> camera{};  // C_s
   cv::Mat source;                  // [512,512] CV_8UC3 aligned portrait
   std::shared_ptr<const ExpressionImageSource> expressions;
+  std::string refinement;          // JSON summary of the refinement of these planes ("" = one-shot)
 };
 
 namespace {
@@ -165,6 +167,8 @@ std::vector<std::string> Avatar::ControlNames() const {
 }
 
 std::array<float, 25> Avatar::SourceCamera() const { return state_ ? state_->camera : std::array<float, 25>{}; }
+
+std::string Avatar::RefinementInfo() const { return state_ ? state_->refinement : std::string(); }
 
 struct Session::Impl {
   SessionOptions options;
@@ -391,6 +395,7 @@ void Session::SaveAvatar(const Avatar& avatar, const std::filesystem::path& path
                   {"model_id", s.model_id},
                   {"camera", std::vector<float>(s.camera.begin(), s.camera.end())},
                   {"expression_kind", s.expressions ? s.expressions->Kind() : std::string()}};
+  if (!s.refinement.empty()) archive.meta["refinement"] = nlohmann::json::parse(s.refinement);
   archive.tensors.emplace_back("avatar.canonical", s.canonical);
   archive.tensors.emplace_back("avatar.appearance", s.appearance);
   cv::Mat src = s.source.isContinuous() ? s.source : s.source.clone();
@@ -415,6 +420,7 @@ Avatar Session::LoadAvatar(const std::filesystem::path& path) const {
     if (camera.size() != 25) throw ModelLoad(file + ": camera label must have 25 values");
     std::copy(camera.begin(), camera.end(), state->camera.begin());
     kind = archive.meta.at("expression_kind").get<std::string>();
+    if (archive.meta.contains("refinement")) state->refinement = archive.meta.at("refinement").dump();
   } catch (const nlohmann::json::exception& e) {
     throw ModelLoad(file + ": avatar metadata is incomplete: " + e.what());
   } catch (const InvalidOptions& e) {
@@ -487,6 +493,70 @@ SessionCounters Session::Counters() const {
 void Session::ResetCounters() const {
   impl_->model->counters().Reset();
   impl_->expression_images = 0;
+}
+
+GohaModel SessionAccess::Model(const Session& session) { return session.impl_->model; }
+
+void SessionAccess::CheckAvatar(const Session& session, const Avatar& avatar) {
+  AVATAR_CHECK_INPUT(avatar.valid()) << "refinement needs a reconstructed or loaded avatar";
+  AVATAR_CHECK_INPUT(avatar.state_->model_id == session.impl_->info.model_id)
+      << "this avatar was made with model '" << avatar.state_->model_id << "', the session runs '"
+      << session.impl_->info.model_id << "'; reconstruct it again with this model";
+}
+
+torch::Tensor SessionAccess::Canonical(const Avatar& avatar) {
+  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
+  return avatar.state_->canonical;
+}
+
+torch::Tensor SessionAccess::Appearance(const Avatar& avatar) {
+  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
+  return avatar.state_->appearance;
+}
+
+torch::Tensor SessionAccess::ExpressionPlanes(const Session& session, const Avatar& avatar,
+                                              const Expression& expression) {
+  CheckAvatar(session, avatar);
+  const AvatarState& state = *avatar.state_;
+  if (state.expressions == nullptr) return {};
+  torch::NoGradGuard no_grad;
+  GohaModel& model = session.impl_->model;
+  const int s = model->config().image_size;
+  const cv::Mat image = state.expressions->Render(expression, s);
+  ++session.impl_->expression_images;
+  AVATAR_CHECK(image.type() == CV_8UC3 && image.rows == s && image.cols == s)
+      << "expression source returned a " << image.cols << "x" << image.rows << " image, expected " << s;
+  return model->ExpressionPlanes(ImageToTensor(image, s, "I_exp"));
+}
+
+Avatar SessionAccess::WithPlanes(const Avatar& avatar, const torch::Tensor& canonical,
+                                 const torch::Tensor& appearance, const std::string& refinement_json) {
+  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
+  const AvatarState& old = *avatar.state_;
+  for (const torch::Tensor* t : {&canonical, &appearance}) {
+    AVATAR_CHECK_INPUT(t->defined() && t->sizes() == old.canonical.sizes())
+        << "refined planes have shape " << (t->defined() ? t->sizes() : c10::IntArrayRef{}) << ", expected "
+        << old.canonical.sizes();
+    AVATAR_CHECK_INPUT(torch::isfinite(*t).all().item<bool>()) << "refined planes have non-finite values";
+  }
+  auto state = std::make_shared<AvatarState>(old);
+  torch::NoGradGuard no_grad;
+  state->canonical = canonical.detach().to(old.canonical.device(), torch::kFloat32).clone();
+  state->appearance = appearance.detach().to(old.appearance.device(), torch::kFloat32).clone();
+  state->base = state->canonical + state->appearance;
+  state->refinement = refinement_json;
+  state->id = g_next_avatar_id++;
+  Avatar out;
+  out.state_ = state;
+  return out;
+}
+
+torch::Tensor SessionAccess::ImageTensor(const cv::Mat& bgr, int size, const char* what) {
+  return ImageToTensor(bgr, size, what);
+}
+
+torch::Tensor SessionAccess::MaskTensor(const cv::Mat& mask, int size, float fill, const char* what) {
+  return MaskToTensor(mask, size, fill, what);
 }
 
 AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path) {

@@ -164,10 +164,14 @@ class Avatar {
   std::vector<std::string> ControlNames() const;
   // The source camera label (25 floats).
   std::array<float, 25> SourceCamera() const;
+  // JSON summary of the per-portrait refinement (core/pipeline/refine.h) these planes had, or ""
+  // for the one-shot planes. Stored in avatar files.
+  std::string RefinementInfo() const;
   const AvatarState* state() const { return state_.get(); }
 
  private:
   friend class Session;
+  friend struct SessionAccess;  // core/pipeline/session_access.h (refinement)
   std::shared_ptr<const AvatarState> state_;
 };
 
@@ -211,6 +215,7 @@ class Session {
   struct Impl;
 
  private:
+  friend struct SessionAccess;  // core/pipeline/session_access.h (refinement)
   std::unique_ptr<Impl> impl_;
 };
 

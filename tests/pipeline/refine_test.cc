@@ -291,6 +291,25 @@ TEST_F(Refine, RejectsForeignAndEmptyAvatars) {
   EXPECT_THROW(RefineAvatar(*session_, avatar_, empty, FastOptions(1), ctx), InvalidInput);
 }
 
+TEST_F(Refine, LeavesTheSharedNetworkUntouchedWhileOthersAnimate) {
+  const Frame reference = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+  RefineResult r;
+  std::thread refiner([&] {
+    RunContext ctx;
+    r = RefineAvatar(*session_, avatar_, target_, FastOptions(30), ctx);
+  });
+  int frames = 0;
+  for (; frames < 10; ++frames) {
+    const Frame f = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+    EXPECT_EQ(cv::norm(f.bgr, reference.bgr, cv::NORM_INF), 0.0) << "frame " << frames;
+  }
+  refiner.join();
+  EXPECT_EQ(r.steps, 30);
+  const Frame after = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+  EXPECT_EQ(cv::norm(after.bgr, reference.bgr, cv::NORM_INF), 0.0);
+  for (const auto& p : SessionAccess::Model(*session_)->parameters()) EXPECT_FALSE(p.grad().defined());
+}
+
 TEST_F(Refine, NoStepsKeepsThePlanes) {
   RefineOptions o = FastOptions(0);
   EXPECT_FALSE(o.Enabled());
