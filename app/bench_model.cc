@@ -288,18 +288,11 @@ int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
 }
 
 int RunBenchModel(const std::vector<std::string>& args) {
-  return GuardedRun("bench model", [&] {
-    BenchModelOptions options;
-    std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio bench model [options]",
-                      "Times every stage of the GOHA network (random weights), the session's cached frames\n"
-                      "against a full recompute, the rasterizer against brute force, and peak memory.",
-                      &positionals)) {
-      return kExitOk;
-    }
-    AVATAR_CHECK_OPTION(positionals.empty()) << "bench model takes no positional arguments";
-    return RunBenchModelImpl(options, ProcessContext());
-  });
+  return RunBenchSubject<BenchModelOptions>(
+      args, "model",
+      "Times every stage of the GOHA network (random weights), the session's cached frames\n"
+      "against a full recompute, the rasterizer against brute force, and peak memory.",
+      RunBenchModelImpl);
 }
 
 }  // namespace

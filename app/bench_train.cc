@@ -192,7 +192,8 @@ class BenchBatchSource : public train::BatchSource {
     render::OrbitPose pose;
     pose.yaw = 8.0 + 4.0 * static_cast<double>(index % 3);
     pose.pitch = 3.0;
-    const render::Cameras target_cam{render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
+    const render::Cameras target_cam{render::OrbitCam2World(pose).unsqueeze(0),
+                                     render::DefaultIntrinsics().unsqueeze(0)};
     t.target_label = render::LabelsFromCameras(target_cam)[0];
     t.target = picture(phase + 0.3, 0.2);
     t.target_matte = head;
@@ -227,10 +228,12 @@ torch::Tensor ForwardLosses(train::StageOneTrainer& trainer, const train::Percep
   const bool deterministic = o.deterministic_render;  // false: jittered samples, as the step
   const torch::Tensor tc = model->CanonicalPlanes(b.source);
   torch::Tensor total =
-      train::ImageLoss(model->Render(tc, target_cam, 0, deterministic).rgb, target, perceptual, o.perceptual_weight).mean();
+      train::ImageLoss(model->Render(tc, target_cam, 0, deterministic).rgb, target, perceptual, o.perceptual_weight)
+          .mean();
   const torch::Tensor tce = tc + model->ExpressionPlanes(b.expression_image);
-  total = total +
-          train::ImageLoss(model->Render(tce, target_cam, 0, deterministic).rgb, target, perceptual, o.perceptual_weight).mean();
+  total = total + train::ImageLoss(model->Render(tce, target_cam, 0, deterministic).rgb, target, perceptual,
+                                   o.perceptual_weight)
+                      .mean();
   const torch::Tensor tp = model->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
   const torch::Tensor tcep = tce + tp;
   total = total + train::ImageLoss(model->Render(tcep, target_cam, 0, deterministic).rgb, target, perceptual,
@@ -238,9 +241,9 @@ torch::Tensor ForwardLosses(train::StageOneTrainer& trainer, const train::Percep
                       .mean();
   if (o.neutral_weight > 0) {
     const torch::Tensor ic_source = model->Render(tc, source_cam, 0, deterministic).rgb;
-    total = total + o.neutral_weight * train::NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual,
-                                                          o.perceptual_weight)
-                                           .mean();
+    total = total +
+            o.neutral_weight *
+                train::NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual, o.perceptual_weight).mean();
   }
   if (o.tv_weight > 0) {
     train::TvOptions tv;
@@ -380,27 +383,28 @@ int RunBenchTrainImpl(const BenchTrainOptions& options, RunContext& ctx) {
     std::cout << "| " << r.config << (r.reference_only ? " (reference)" : "") << " | " << r.batch << " | "
               << Fixed(r.step, 3) << " | " << Fixed(r.forward, 3) << " | " << Fixed(r.backward, 3) << " | "
               << Fixed(static_cast<double>(r.batch) / r.step, 2) << " | " << Fixed(r.peak_rss_mb, 0) << " | "
-              << Fixed(r.rss_growth_mb, 0) << " | " << Fixed(r.step / reference, 2) << "x | "
-              << Fixed(r.gemm_gflops, 1) << " | " << Fixed(r.step / gemm_s, r.step / gemm_s < 100 ? 1 : 0) << "x |"
+              << Fixed(r.rss_growth_mb, 0) << " | " << Fixed(r.step / reference, 2) << "x | " << Fixed(r.gemm_gflops, 1)
+              << " | " << Fixed(r.step / gemm_s, r.step / gemm_s < 100 ? 1 : 0) << "x |"
               << (r.skipped > 0 ? " (" + std::to_string(r.skipped) + " non-finite steps skipped)" : "") << std::endl;
     results.push_back(std::move(r));
   }
   const double gemm_after = MeasureGemmGflops(kGemmSize, 5);
   double worst_diff = 0;
   for (const auto& r : results) worst_diff = std::max(worst_diff, r.loss_rel_diff);
-  std::cout << "\nGEMM peak after the run: " << Fixed(gemm_after, 1)
-            << " GFLOP/s (a large change means the machine was busy).\n"
-            << "forward = a forward-only pass of the same loss terms on the same batch (graph recorded, no backward; "
-               "the trainer has no split; it drew the step's random numbers and its loss matched the step's to a relative "
-               "difference of "
-            << worst_diff << "); backward + update = step - forward (backward, gradient norm, clip, Adam).\n"
-            << "step / GEMM = step time over the time of one fp32 " << kGemmSize << "^3 GEMM at the rate measured "
-            << "right before that case. "
-            << (peak_resettable ? "peak RSS = the process's resident-set high-water mark during the case (VmHWM, "
-                                  "reset before it); RSS growth = that peak minus the RSS at the case's start."
-                                : "peak RSS = the process's lifetime peak (getrusage ru_maxrss) after the case; "
-                                  "RSS growth = its increase during the case (0 when an earlier case peaked higher).")
-            << "\n";
+  std::cout
+      << "\nGEMM peak after the run: " << Fixed(gemm_after, 1)
+      << " GFLOP/s (a large change means the machine was busy).\n"
+      << "forward = a forward-only pass of the same loss terms on the same batch (graph recorded, no backward; "
+         "the trainer has no split; it drew the step's random numbers and its loss matched the step's to a relative "
+         "difference of "
+      << worst_diff << "); backward + update = step - forward (backward, gradient norm, clip, Adam).\n"
+      << "step / GEMM = step time over the time of one fp32 " << kGemmSize << "^3 GEMM at the rate measured "
+      << "right before that case. "
+      << (peak_resettable ? "peak RSS = the process's resident-set high-water mark during the case (VmHWM, "
+                            "reset before it); RSS growth = that peak minus the RSS at the case's start."
+                          : "peak RSS = the process's lifetime peak (getrusage ru_maxrss) after the case; "
+                            "RSS growth = its increase during the case (0 when an earlier case peaked higher).")
+      << "\n";
 
   if (!options.json.empty()) {
     nlohmann::json j;
@@ -442,19 +446,12 @@ int RunBenchTrainImpl(const BenchTrainOptions& options, RunContext& ctx) {
 }
 
 int RunBenchTrain(const std::vector<std::string>& args) {
-  return GuardedRun("bench train", [&] {
-    BenchTrainOptions options;
-    std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio bench train [options]",
-                      "Times the stage-I training step (every loss term) on synthetic batches for model configs x\n"
-                      "batch sizes: step, forward and backward time, samples/s and peak memory, with every step\n"
-                      "time as a ratio to the tiny batch-1 step and to a GEMM measured in the same run.",
-                      &positionals)) {
-      return kExitOk;
-    }
-    AVATAR_CHECK_OPTION(positionals.empty()) << "bench train takes no positional arguments";
-    return RunBenchTrainImpl(options, ProcessContext());
-  });
+  return RunBenchSubject<BenchTrainOptions>(
+      args, "train",
+      "Times the stage-I training step (every loss term) on synthetic batches for model configs x\n"
+      "batch sizes: step, forward and backward time, samples/s and peak memory, with every step\n"
+      "time as a ratio to the tiny batch-1 step and to a GEMM measured in the same run.",
+      RunBenchTrainImpl);
 }
 
 }  // namespace

@@ -67,18 +67,11 @@ std::string Fixed(double value, int digits) {
 }
 
 int RunBenchRender(const std::vector<std::string>& args) {
-  return GuardedRun("bench render", [&] {
-    BenchRenderOptions options;
-    std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio bench render [options]",
-                      "Times the volume renderer (random tri-planes and decoder, deterministic sampling, no\n"
-                      "gradients) and compares the decoder's FLOP rate with this machine's GEMM peak.",
-                      &positionals)) {
-      return kExitOk;
-    }
-    AVATAR_CHECK_OPTION(positionals.empty()) << "bench render takes no positional arguments";
-    return RunBenchRenderImpl(options, ProcessContext());
-  });
+  return RunBenchSubject<BenchRenderOptions>(
+      args, "render",
+      "Times the volume renderer (random tri-planes and decoder, deterministic sampling, no\n"
+      "gradients) and compares the decoder's FLOP rate with this machine's GEMM peak.",
+      RunBenchRenderImpl);
 }
 
 }  // namespace

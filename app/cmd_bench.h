@@ -59,6 +59,23 @@ struct BenchRenderOptions {
 // Runs the render benchmark and prints a table; returns kExitOk. Throws avatar::Error.
 int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx);
 
+// The body every subject's BenchSubjectFn shares: parse `Options` from args (no positionals),
+// print help when asked, else run `impl(options, ctx)` under GuardedRun.
+template <typename Options, typename Impl>
+int RunBenchSubject(const std::vector<std::string>& args, const std::string& subject, const char* description,
+                    Impl impl) {
+  const std::string title = "bench " + subject;
+  return GuardedRun(title.c_str(), [&] {
+    Options options;
+    std::vector<std::string> positionals;
+    if (!ParseCommand(options, args, "avatar-studio " + title + " [options]", description, &positionals)) {
+      return kExitOk;
+    }
+    AVATAR_CHECK_OPTION(positionals.empty()) << title << " takes no positional arguments";
+    return impl(options, ProcessContext());
+  });
+}
+
 }  // namespace avatar::app
 
 #define AVATAR_REGISTER_BENCH_SUBJECT(name, summary, fn) \
