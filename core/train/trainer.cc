@@ -49,6 +49,25 @@ double GradNorm(const std::vector<torch::Tensor>& params, const torch::Device& d
   return std::sqrt(sq.item<double>());
 }
 
+// The sum of the weighted loss terms; each term's batch mean is logged into `logged`.
+torch::Tensor SumTerms(const std::map<std::string, torch::Tensor>& terms, std::map<std::string, double>& logged) {
+  torch::Tensor total;
+  for (const auto& [name, t] : terms) {
+    total = total.defined() ? total + t : t;
+    logged[name] = t.item<double>();
+  }
+  return total;
+}
+
+// Measures the gradient norm into `norm`; false (with `reason`) when it is not finite.
+bool FiniteGradNorm(const std::vector<torch::Tensor>& params, const torch::Device& device, double& norm,
+                    std::string& reason, const char* what) {
+  norm = GradNorm(params, device);
+  if (std::isfinite(norm)) return true;
+  reason = what;
+  return false;
+}
+
 // One Adam update (see the header comment) of the parameters with gradients, clipped to `clip`.
 void AdamUpdate(const std::vector<torch::Tensor>& params, std::vector<torch::Tensor>& exp_avg,
                 std::vector<torch::Tensor>& exp_avg_sq, std::vector<int64_t>& steps, double grad_norm, double clip,
@@ -305,11 +324,7 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
     terms["tv"] = options_.tv_weight * DensityTvLoss(density, b.size(), tv, largest.options());
   }
 
-  torch::Tensor total;
-  for (const auto& [name, t] : terms) {
-    total = total.defined() ? total + t : t;
-    r.terms[name] = t.item<double>();
-  }
+  const torch::Tensor total = SumTerms(terms, r.terms);
   r.loss = total.item<double>();
   bool ok = std::isfinite(r.loss);
   if (!ok) r.skip_reason = "non-finite loss";
@@ -319,11 +334,7 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
     // checks and the update below are the same on every rank.
     ok = ReduceOverRanks(*reducer_, ok, {&r.loss}, {{&r.terms, KeysOf(r.terms)}}, params_, r);
   }
-  if (ok) {
-    r.grad_norm = GradNorm(params_, device_);
-    ok = std::isfinite(r.grad_norm);
-    if (!ok) r.skip_reason = "non-finite gradient";
-  }
+  if (ok) ok = FiniteGradNorm(params_, device_, r.grad_norm, r.skip_reason, "non-finite gradient");
   if (ok) {
     AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
                options_.beta1, options_.beta2, options_.eps);
@@ -381,22 +392,14 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
       terms["gan"] = options_.gan_weight * GeneratorGanLoss(disc_->forward(fake, low)).mean();
       SetRequiresGrad(d_params_, true);
     }
-    torch::Tensor total;
-    for (const auto& [name, t] : terms) {
-      total = total.defined() ? total + t : t;
-      r.terms[name] = t.item<double>();
-    }
+    const torch::Tensor total = SumTerms(terms, r.terms);
     r.loss = total.item<double>();
     ok = std::isfinite(r.loss);
     if (!ok) r.skip_reason = "non-finite loss";
     if (ok) {
       total.backward();
       // With a reducer the gradients are checked after they are averaged over the ranks.
-      if (!reducer_) {
-        r.grad_norm = GradNorm(params_, device_);
-        ok = std::isfinite(r.grad_norm);
-        if (!ok) r.skip_reason = "non-finite gradient";
-      }
+      if (!reducer_) ok = FiniteGradNorm(params_, device_, r.grad_norm, r.skip_reason, "non-finite gradient");
     }
   }
 
@@ -427,9 +430,7 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     if (ok) {
       d_total.backward();
       if (!reducer_) {
-        r.d_grad_norm = GradNorm(d_params_, device_);
-        ok = std::isfinite(r.d_grad_norm);
-        if (!ok) r.skip_reason = "non-finite discriminator gradient";
+        ok = FiniteGradNorm(d_params_, device_, r.d_grad_norm, r.skip_reason, "non-finite discriminator gradient");
       }
     }
   }
