@@ -212,48 +212,14 @@ class BenchBatchSource : public train::BatchSource {
 };
 
 // ---------------------------------------------------------------------------------------------
-// The forward half of StageOneTrainer::Step (stage I, no rotation, every branch active: the
-// same terms, the same order, with gradients recorded as in the step) -> the summed loss. The
-// graph is dropped by the caller without a backward pass.
-torch::Tensor ForwardLosses(train::StageOneTrainer& trainer, const train::PerceptualFn& perceptual,
-                            const train::TrainBatch& batch) {
-  const train::TrainerOptions& o = trainer.options();
-  GohaModel& model = trainer.model();
-  model->train();
-  const train::TrainBatch b = batch.To(trainer.device());
-  const int64_t res = model->config().render_size;
-  const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
-  const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
-  const torch::Tensor target = train::ResizeTo(train::Matte(b.target, b.target_matte), res);
-  const bool deterministic = o.deterministic_render;  // false: jittered samples, as the step
-  const torch::Tensor tc = model->CanonicalPlanes(b.source);
-  torch::Tensor total =
-      train::ImageLoss(model->Render(tc, target_cam, 0, deterministic).rgb, target, perceptual, o.perceptual_weight)
-          .mean();
-  const torch::Tensor tce = tc + model->ExpressionPlanes(b.expression_image);
-  total = total + train::ImageLoss(model->Render(tce, target_cam, 0, deterministic).rgb, target, perceptual,
-                                   o.perceptual_weight)
-                      .mean();
-  const torch::Tensor tp = model->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
-  const torch::Tensor tcep = tce + tp;
-  total = total + train::ImageLoss(model->Render(tcep, target_cam, 0, deterministic).rgb, target, perceptual,
-                                   o.perceptual_weight)
-                      .mean();
-  if (o.neutral_weight > 0) {
-    const torch::Tensor ic_source = model->Render(tc, source_cam, 0, deterministic).rgb;
-    total = total +
-            o.neutral_weight *
-                train::NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual, o.perceptual_weight).mean();
-  }
-  if (o.tv_weight > 0) {
-    train::TvOptions tv;
-    tv.num_points = o.tv_points;
-    tv.sigma = o.tv_sigma;
-    tv.box_warp = model->RenderOptionsFor().box_warp;
-    auto decoder = [&model](const torch::Tensor& f) { return model->decoder->forward(f); };
-    const render::Field field = render::MakeTriplaneField(tcep, decoder, tv.box_warp);
-    const train::DensityFn density = [&field](const torch::Tensor& points) { return field(points).raw_density; };
-    total = total + o.tv_weight * train::DensityTvLoss(density, b.size(), tv, tcep.options());
+// The forward half of StageOneTrainer::Step: the trainer's own LossTerms at its current step
+// (the step's terms, with gradients recorded) -> their sum. The graph is dropped by the caller
+// without a backward pass.
+torch::Tensor ForwardLosses(train::StageOneTrainer& trainer, const train::TrainBatch& batch) {
+  trainer.model()->train();
+  torch::Tensor total;
+  for (const auto& [name, t] : trainer.LossTerms(batch.To(trainer.device()), trainer.step())) {
+    total = total.defined() ? total + t : t;
   }
   return total;
 }
@@ -304,7 +270,7 @@ CaseResult RunCase(const std::string& config_name, int64_t batch, const BenchTra
       double forward_loss = 0;
       {
         Timer timer;
-        const torch::Tensor loss = ForwardLosses(trainer, perceptual, b);
+        const torch::Tensor loss = ForwardLosses(trainer, b);
         forward_loss = loss.item<double>();  // waits for the value, as the step does
         r.forward_s.push_back(timer.Seconds());
         AVATAR_CHECK(std::isfinite(forward_loss))

@@ -256,28 +256,18 @@ std::string StageOneTrainer::PhaseAt(int64_t step) const {
   return "appearance";
 }
 
-StepResult StageOneTrainer::Step(const TrainBatch& batch) {
-  if (options_.stage == 2) return StepStageTwo(batch);
-  Timer timer;
-  StepResult r;
-  r.step = step_;
-  r.phase = PhaseAt(step_);
-  AVATAR_CHECK_INPUT(batch.size() >= 1) << "training step on an empty batch";
-  model_->train();
-  const TrainBatch b = batch.To(device_);
+std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch& b, int64_t step) {
   const int64_t res = model_->config().render_size;
-  const bool with_expression = step_ >= options_.expression_start;
-  const bool with_appearance = step_ >= options_.appearance_start;
+  const bool with_expression = step >= options_.expression_start;
+  const bool with_appearance = step >= options_.appearance_start;
   // Which terms this step has (the release's rotation, when on, after the canonical phase).
   bool recon = true, full = with_appearance, neutral = true;
   if (options_.rotation && with_expression) {
-    const int64_t k = step_ % 6;
+    const int64_t k = step % 6;
     recon = k < 4;
     full = with_appearance && k < 2;
     neutral = k >= 4;
   }
-
-  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
 
   const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
   const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
@@ -323,6 +313,21 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
     const DensityFn density = [&field](const torch::Tensor& points) { return field(points).raw_density; };
     terms["tv"] = options_.tv_weight * DensityTvLoss(density, b.size(), tv, largest.options());
   }
+
+  return terms;
+}
+
+StepResult StageOneTrainer::Step(const TrainBatch& batch) {
+  if (options_.stage == 2) return StepStageTwo(batch);
+  Timer timer;
+  StepResult r;
+  r.step = step_;
+  r.phase = PhaseAt(step_);
+  AVATAR_CHECK_INPUT(batch.size() >= 1) << "training step on an empty batch";
+  model_->train();
+  const TrainBatch b = batch.To(device_);
+  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+  const std::map<std::string, torch::Tensor> terms = LossTerms(b, step_);
 
   const torch::Tensor total = SumTerms(terms, r.terms);
   r.loss = total.item<double>();

@@ -202,6 +202,11 @@ class StageOneTrainer {
   // One optimiser step on `batch`. A non-finite step is counted (bad_in_a_row); RunTraining stops on it.
   StepResult Step(const TrainBatch& batch);
 
+  // The weighted stage-I loss terms (canonical, expression, appearance, neutral, tv; each a
+  // batch mean with its graph) that Step(`b`) takes at `step` (curriculum and rotation), for a
+  // batch already on device(). Step sums and backpropagates them; `bench train` times them.
+  std::map<std::string, torch::Tensor> LossTerms(const TrainBatch& b, int64_t step);
+
   // Deterministic renders (no gradient) of the three plane sums at the target camera, in [-1,1].
   struct Renders {
     torch::Tensor target, canonical, expression, full;  // [B,3,R,R]
