@@ -156,8 +156,9 @@ render::RenderOutput GohaModelImpl::Render(const torch::Tensor& planes, const re
                                            bool deterministic, render::RenderProfile* profile) {
   ++counters_.renders;
   const render::PointDecoder decode = [this](const torch::Tensor& f) { return decoder->forward(f); };
-  return render::RenderTriplanes(planes, decode, cameras, RenderOptionsFor(resolution, deterministic), c10::nullopt,
-                                 profile);
+  render::RenderOptions options = RenderOptionsFor(resolution, deterministic);
+  if (inference_skips) options.EnableInferenceSkips();
+  return render::RenderTriplanes(planes, decode, cameras, options, c10::nullopt, profile);
 }
 
 AppearanceOutput GohaModelImpl::AppearancePlanes(const torch::Tensor& source, const torch::Tensor& eye_mouth,

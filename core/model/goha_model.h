@@ -116,6 +116,9 @@ class GohaModelImpl : public torch::nn::Module {
                               bool deterministic = true, render::RenderProfile* profile = nullptr);
   // Render options of this config at `resolution` (0 = config.render_size).
   render::RenderOptions RenderOptionsFor(int resolution = 0, bool deterministic = true) const;
+  // Render() turns on RenderOptions::EnableInferenceSkips (early termination, missed rays) when
+  // set; they act only with grad mode off. Off by default (training); the session turns it on.
+  bool inference_skips = false;
   // rgb [B,3,r,r] in [-1,1] -> [B,3,sr_size,sr_size].
   torch::Tensor SuperResolve(const torch::Tensor& rgb);
 

@@ -4,7 +4,8 @@
 
 namespace avatar::render {
 
-MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::Tensor& depths, double far) {
+MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::Tensor& depths, double far,
+                                 bool with_depth) {
   AVATAR_CHECK_INPUT(raw_density.dim() == 3 && depths.sizes() == raw_density.sizes() && raw_density.size(2) >= 2)
       << "ray marching needs raw density and depths [B,N,S] with S >= 2, got " << raw_density.sizes() << " and "
       << depths.sizes();
@@ -26,6 +27,7 @@ MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::
       0.5 * (torch::cat({zero, out.interval_weights}, 2) + torch::cat({out.interval_weights, zero}, 2));
   out.midpoints = 0.5 * (t0 + t1);
   out.opacity = -torch::expm1(-cum.select(2, s - 2));
+  if (!with_depth) return out;
   const torch::Tensor wsum = out.interval_weights.sum(2);
   out.depth =
       ((out.interval_weights * out.midpoints).sum(2) + kEmptyRayDepthWeight * far) / (wsum + kEmptyRayDepthWeight);

@@ -36,8 +36,9 @@ struct MarchWeights {
 
 // raw_density [B,N,S] (decoder output, before softplus), depths [B,N,S] sorted ascending;
 // `far` is the empty-ray depth. Differentiable in raw_density. Throws InvalidInput for
-// mismatched shapes or S < 2.
-MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::Tensor& depths, double far);
+// mismatched shapes or S < 2. with_depth = false leaves `depth` undefined (saves its sums).
+MarchWeights ComputeMarchWeights(const torch::Tensor& raw_density, const torch::Tensor& depths, double far,
+                                 bool with_depth = true);
 
 // sum_s v_s * c_s: sample_weights [B,N,S], features [B,N,S,C] -> [B,N,C] (before the [-1,1]
 // mapping). Differentiable in both.

@@ -3,6 +3,7 @@
 #include <ATen/Parallel.h>
 
 #include <cmath>
+#include <limits>
 
 #include "core/render/depth_sampling.h"
 #include "core/render/ray_marcher.h"
@@ -49,6 +50,12 @@ void RenderOptions::Validate() const {
       << "the depth range needs 0 <= near < far, got [" << near << ", " << far << "]";
   AVATAR_CHECK_OPTION(std::isfinite(box_warp) && box_warp > 0.0) << "--box-warp must be > 0, got " << box_warp;
   AVATAR_CHECK_OPTION(chunk_rays >= 1) << "--chunk-rays must be >= 1, got " << chunk_rays;
+  AVATAR_CHECK_OPTION(std::isfinite(termination_transmittance) && termination_transmittance >= 0.0 &&
+                      termination_transmittance < 1.0)
+      << "termination_transmittance must be in [0,1), got " << termination_transmittance;
+  AVATAR_CHECK_OPTION(termination_block >= 1) << "termination_block must be >= 1, got " << termination_block;
+  AVATAR_CHECK_OPTION(std::isfinite(miss_margin) && miss_margin >= 0.0 && miss_margin <= 1.0)
+      << "miss_margin must be in [0,1], got " << miss_margin;
 }
 
 Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, double box_warp, RenderProfile* profile) {
@@ -87,6 +94,149 @@ Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, doubl
   };
 }
 
+namespace {
+
+// Raw density of samples that are not evaluated: softplus(-31) ~ 3e-14 per unit length, empty.
+constexpr double kSkippedRaw = -30.0;
+
+// Marches the union of coarse and importance samples (or the coarse ones alone when `fine` is
+// null) and composites the features.
+void MarchUnion(const Evaluated& coarse, const torch::Tensor& coarse_depths, const Evaluated* fine,
+                const torch::Tensor& fine_depths, const RenderOptions& options, MarchWeights& weights,
+                torch::Tensor& composite) {
+  if (fine == nullptr) {
+    weights = ComputeMarchWeights(coarse.raw, coarse_depths, options.far, options.return_depth);
+    composite = CompositeFeatures(weights.sample_weights, coarse.features);
+    return;
+  }
+  const int64_t num_coarse = coarse_depths.size(2), num_fine = fine_depths.size(2);
+  // Sort the union once; only the scalar densities are permuted. The per-sample weights are
+  // mapped back to the unsorted order, so the features never need a gather.
+  torch::Tensor sorted_depths, order;
+  std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), c10::optional<bool>(true),
+                                               /*dim=*/2, /*descending=*/false);
+  const torch::Tensor sorted_raw = torch::cat({coarse.raw, fine->raw}, 2).gather(2, order);
+  weights = ComputeMarchWeights(sorted_raw, sorted_depths, options.far, options.return_depth);
+  torch::Tensor inverse;
+  {
+    torch::NoGradGuard no_grad;
+    const int64_t total = num_coarse + num_fine;
+    inverse = torch::empty_like(order).scatter_(
+        2, order, torch::arange(total, order.options()).view({1, 1, total}).expand_as(order));
+  }
+  const torch::Tensor unsorted = weights.sample_weights.gather(2, inverse);
+  composite = CompositeFeatures(unsorted.narrow(2, 0, num_coarse), coarse.features) +
+              CompositeFeatures(unsorted.narrow(2, num_coarse, num_fine), fine->features);
+}
+
+// Rays [B,N] whose segment [near, far] meets the cube |x|, |y|, |z| <= half (slab test).
+torch::Tensor SegmentsHitBox(const torch::Tensor& origins, const torch::Tensor& directions, double near, double far,
+                             double half) {
+  // A zero direction component becomes tiny: the slab is then all or nothing along that axis.
+  const double tiny = 1e-12;
+  const torch::Tensor d = torch::where(directions.abs() < tiny, torch::full_like(directions, tiny), directions);
+  const torch::Tensor t0 = (-half - origins) / d, t1 = (half - origins) / d;
+  const torch::Tensor enter = torch::minimum(t0, t1).amax(2).clamp_min(near);
+  const torch::Tensor leave = torch::maximum(t0, t1).amin(2).clamp_max(far);
+  return enter <= leave;
+}
+
+// Evaluates the field at the samples points [B,N*S,3] where keep [N*S] is true (for every batch
+// element) and writes them into `into` (raw [B,N,S] preset to kSkippedRaw, features [B,N,S,C]
+// zeros, allocated at the first call once C is known).
+void EvaluateWhere(const Field& field, const torch::Tensor& points, const torch::Tensor& keep, int64_t n, int64_t s,
+                   Evaluated& into) {
+  const int64_t b = points.size(0);
+  const torch::Tensor idx = keep.nonzero().view({-1});
+  const int64_t k = idx.numel();
+  if (k == 0 && into.features.defined()) return;
+  // With nothing to evaluate, one point still tells the channel count.
+  const torch::Tensor sel = k == 0 ? torch::zeros({1}, idx.options()) : idx;
+  const torch::Tensor pts = points.index_select(1, sel);
+  FieldSamples samples = field(pts);
+  AVATAR_CHECK_INPUT(samples.raw_density.defined() && samples.features.defined() &&
+                     samples.raw_density.numel() == b * sel.numel() && samples.features.dim() == 3 &&
+                     samples.features.size(0) == b && samples.features.size(1) == sel.numel())
+      << "the field must return raw density [B,P] and features [B,P,C] for P = " << sel.numel() << " points";
+  const int64_t c = samples.features.size(2);
+  if (!into.features.defined()) {
+    into.features = torch::zeros({b, n, s, c}, samples.features.options());
+  }
+  AVATAR_CHECK_INPUT(into.features.size(3) == c) << "the field changed its channel count between calls";
+  if (!into.raw.defined()) into.raw = torch::full({b, n, s}, kSkippedRaw, samples.raw_density.options());
+  if (k == 0) return;
+  into.raw.view({b, n * s}).index_copy_(1, idx, samples.raw_density.reshape({b, k}));
+  into.features.view({b, n * s, c}).index_copy_(1, idx, samples.features);
+}
+
+// Transmittance before each sample [B,N,S] (1 at the first) from raw densities and depths [B,N,S].
+torch::Tensor TransmittanceBefore(const torch::Tensor& raw, const torch::Tensor& depths) {
+  const int64_t s = raw.size(2);
+  const torch::Tensor delta = depths.narrow(2, 1, s - 1) - depths.narrow(2, 0, s - 1);
+  const torch::Tensor raw_mid = 0.5 * (raw.narrow(2, 0, s - 1) + raw.narrow(2, 1, s - 1));
+  const torch::Tensor tau = torch::softplus(raw_mid - 1.0).clamp_max(kMaxDensity) * delta;
+  const torch::Tensor cum = torch::cumsum(tau, 2);
+  return torch::exp(-torch::cat({torch::zeros_like(raw.narrow(2, 0, 1)), cum}, 2));
+}
+
+// The inference path with early termination and/or missed-ray skipping (grad mode off).
+void RenderRaysSkipping(const Field& field, const torch::Tensor& origins, const torch::Tensor& directions,
+                        const RenderOptions& options, c10::optional<at::Generator> generator, MarchWeights& weights,
+                        torch::Tensor& composite, torch::Tensor& hit_per_batch) {
+  const int64_t b = origins.size(0), n = origins.size(1);
+  const int64_t num_coarse = options.num_coarse, num_fine = options.num_importance;
+  const auto bool_opts = origins.options().dtype(torch::kBool);
+  const torch::Tensor coarse_depths = StratifiedDepths(b, n, num_coarse, options.near, options.far,
+                                                       options.deterministic, origins.options(), generator);
+  torch::Tensor active = torch::ones({n}, bool_opts);
+  if (options.skip_missed_rays) {
+    const double half = options.box_warp * (0.5 + options.miss_margin);
+    hit_per_batch = SegmentsHitBox(origins, directions, options.near, options.far, half);  // [B,N]
+    active = hit_per_batch.any(0);
+  }
+  const torch::Tensor hit = active.clone();
+  const auto points_at = [&](const torch::Tensor& depths) {
+    return (origins.unsqueeze(2) + depths.unsqueeze(3) * directions.unsqueeze(2)).reshape({b, -1, 3});
+  };
+  // Coarse samples in blocks; rays leave the active set once opaque.
+  const torch::Tensor coarse_points = points_at(coarse_depths);
+  const int64_t block = options.early_termination ? options.termination_block : num_coarse;
+  Evaluated coarse;
+  for (int64_t start = 0; start < num_coarse; start += block) {
+    const int64_t len = std::min(block, num_coarse - start);
+    torch::Tensor keep = torch::zeros({n, num_coarse}, bool_opts);
+    keep.narrow(1, start, len).copy_(active.unsqueeze(1).expand({n, len}));
+    EvaluateWhere(field, coarse_points, keep.view({-1}), n, num_coarse, coarse);
+    if (options.early_termination && start + len < num_coarse) {
+      const torch::Tensor t =
+          TransmittanceBefore(coarse.raw.narrow(2, 0, start + len), coarse_depths.narrow(2, 0, start + len));
+      active = active & (t.select(2, start + len - 1) > options.termination_transmittance).any(0);
+      if (!active.any().item<bool>()) break;
+    }
+  }
+  if (num_fine == 0) {
+    MarchUnion(coarse, coarse_depths, nullptr, torch::Tensor(), options, weights, composite);
+    return;
+  }
+  const MarchWeights coarse_weights = ComputeMarchWeights(coarse.raw, coarse_depths, options.far, false);
+  const torch::Tensor fine_depths =
+      ImportanceDepths(coarse_depths, coarse_weights.interval_weights, num_fine, options.deterministic, generator);
+  torch::Tensor keep = hit.unsqueeze(1).expand({n, num_fine});
+  if (options.early_termination) {
+    // Importance samples behind the first coarse sample seen through less than the threshold.
+    const torch::Tensor t = TransmittanceBefore(coarse.raw, coarse_depths);
+    const torch::Tensor stop = torch::where(t < options.termination_transmittance, coarse_depths,
+                                            torch::full_like(coarse_depths, std::numeric_limits<double>::infinity()))
+                                   .amin(2);  // [B,N]
+    keep = keep & (fine_depths < stop.unsqueeze(2)).any(0);
+  }
+  Evaluated fine;
+  EvaluateWhere(field, points_at(fine_depths), keep.reshape({-1}), n, num_fine, fine);
+  MarchUnion(coarse, coarse_depths, &fine, fine_depths, options, weights, composite);
+}
+
+}  // namespace
+
 RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, const torch::Tensor& directions,
                            const RenderOptions& options, c10::optional<at::Generator> generator,
                            RenderProfile* profile) {
@@ -98,47 +248,43 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
   Timer timer;
   const int64_t b = origins.size(0), n = origins.size(1);
   const int64_t num_coarse = options.num_coarse, num_fine = options.num_importance;
-  const torch::Tensor coarse_depths = StratifiedDepths(b, n, num_coarse, options.near, options.far,
-                                                       options.deterministic, origins.options(), generator);
-  const Evaluated coarse = Evaluate(field, origins, directions, coarse_depths);
-  const int64_t channels = coarse.features.size(3);
   RayRenderOutput out;
   MarchWeights weights;
   torch::Tensor composite;  // [B,N,C] in about [0,1]
-  if (num_fine == 0) {
-    weights = ComputeMarchWeights(coarse.raw, coarse_depths, options.far);
-    composite = CompositeFeatures(weights.sample_weights, coarse.features);
+  torch::Tensor hit;        // [B,N] rays that meet the box (skip_missed_rays)
+  const bool skipping =
+      !torch::GradMode::is_enabled() && (options.early_termination || options.skip_missed_rays) && n > 0;
+  if (skipping) {
+    RenderRaysSkipping(field, origins, directions, options, generator, weights, composite, hit);
   } else {
-    torch::Tensor fine_depths;
-    {
-      torch::NoGradGuard no_grad;
-      const MarchWeights coarse_weights = ComputeMarchWeights(coarse.raw.detach(), coarse_depths, options.far);
-      fine_depths =
-          ImportanceDepths(coarse_depths, coarse_weights.interval_weights, num_fine, options.deterministic, generator);
+    const torch::Tensor coarse_depths = StratifiedDepths(b, n, num_coarse, options.near, options.far,
+                                                         options.deterministic, origins.options(), generator);
+    const Evaluated coarse = Evaluate(field, origins, directions, coarse_depths);
+    if (num_fine == 0) {
+      MarchUnion(coarse, coarse_depths, nullptr, torch::Tensor(), options, weights, composite);
+    } else {
+      torch::Tensor fine_depths;
+      {
+        torch::NoGradGuard no_grad;
+        const MarchWeights coarse_weights = ComputeMarchWeights(coarse.raw.detach(), coarse_depths, options.far);
+        fine_depths = ImportanceDepths(coarse_depths, coarse_weights.interval_weights, num_fine, options.deterministic,
+                                       generator);
+      }
+      const Evaluated fine = Evaluate(field, origins, directions, fine_depths);
+      AVATAR_CHECK_INPUT(fine.features.size(3) == coarse.features.size(3))
+          << "the field changed its channel count between calls";
+      MarchUnion(coarse, coarse_depths, &fine, fine_depths, options, weights, composite);
     }
-    const Evaluated fine = Evaluate(field, origins, directions, fine_depths);
-    AVATAR_CHECK_INPUT(fine.features.size(3) == channels) << "the field changed its channel count between calls";
-    // Sort the union once; only the scalar densities are permuted. The per-sample weights are
-    // mapped back to the unsorted order, so the features never need a gather.
-    torch::Tensor sorted_depths, order;
-    std::tie(sorted_depths, order) = torch::sort(torch::cat({coarse_depths, fine_depths}, 2), c10::optional<bool>(true),
-                                                 /*dim=*/2, /*descending=*/false);
-    const torch::Tensor sorted_raw = torch::cat({coarse.raw, fine.raw}, 2).gather(2, order);
-    weights = ComputeMarchWeights(sorted_raw, sorted_depths, options.far);
-    torch::Tensor inverse;
-    {
-      torch::NoGradGuard no_grad;
-      const int64_t total = num_coarse + num_fine;
-      inverse = torch::empty_like(order).scatter_(
-          2, order, torch::arange(total, order.options()).view({1, 1, total}).expand_as(order));
-    }
-    const torch::Tensor unsorted = weights.sample_weights.gather(2, inverse);
-    composite = CompositeFeatures(unsorted.narrow(2, 0, num_coarse), coarse.features) +
-                CompositeFeatures(unsorted.narrow(2, num_coarse, num_fine), fine.features);
   }
   out.features = composite * 2.0 - 1.0;
-  out.opacity = weights.opacity;
-  out.depth = weights.depth;
+  if (options.return_opacity) out.opacity = weights.opacity;
+  if (options.return_depth) out.depth = weights.depth;
+  if (hit.defined()) {
+    // Missed rays: background, no opacity, far depth.
+    out.features = torch::where(hit.unsqueeze(2), out.features, torch::full_like(out.features, -1.0));
+    if (out.opacity.defined()) out.opacity = torch::where(hit, out.opacity, torch::zeros_like(out.opacity));
+    if (out.depth.defined()) out.depth = torch::where(hit, out.depth, torch::full_like(out.depth, options.far));
+  }
   if (options.return_weights) {
     out.weights = weights.interval_weights;
     out.midpoints = weights.midpoints;
@@ -181,8 +327,8 @@ RenderOutput RenderField(const Field& field, const Cameras& cameras, const Rende
       return torch::cat(pieces, 1);
     };
     rendered.features = gather(&RayRenderOutput::features);
-    rendered.opacity = gather(&RayRenderOutput::opacity);
-    rendered.depth = gather(&RayRenderOutput::depth);
+    if (options.return_opacity) rendered.opacity = gather(&RayRenderOutput::opacity);
+    if (options.return_depth) rendered.depth = gather(&RayRenderOutput::depth);
     if (options.return_weights) {
       rendered.weights = gather(&RayRenderOutput::weights);
       rendered.midpoints = gather(&RayRenderOutput::midpoints);
@@ -192,8 +338,8 @@ RenderOutput RenderField(const Field& field, const Cameras& cameras, const Rende
   const int64_t c = rendered.features.size(2);
   out.features = rendered.features.view({b, res, res, c}).permute({0, 3, 1, 2}).contiguous();
   if (c >= 3) out.rgb = out.features.narrow(1, 0, 3);
-  out.opacity = rendered.opacity.view({b, 1, res, res});
-  out.depth = rendered.depth.view({b, 1, res, res});
+  if (rendered.opacity.defined()) out.opacity = rendered.opacity.view({b, 1, res, res});
+  if (rendered.depth.defined()) out.depth = rendered.depth.view({b, 1, res, res});
   out.weights = rendered.weights;
   out.midpoints = rendered.midpoints;
   return out;

@@ -43,6 +43,28 @@ struct RenderOptions {
   bool return_weights = false;
   // Rays per parallel work item when rendering without gradients (memory/cache trade-off).
   int chunk_rays = 256;
+  // Inference-only skips. They take effect only while grad mode is off (the chunked path), so a
+  // training render is computed exactly as without them; all default off.
+  // Early ray termination: coarse samples are evaluated in blocks of `termination_block`; a ray
+  // whose transmittance fell below `termination_transmittance` evaluates no further coarse
+  // samples, and no importance samples behind the coarse sample where it fell below.
+  bool early_termination = false;
+  double termination_transmittance = 1e-3;
+  int termination_block = 8;
+  // Rays whose [near, far] segment misses the tri-plane box (side box_warp, grown by
+  // miss_margin * box_warp on each side for the bilinear footprint) are not marched: features
+  // -1 (background), opacity 0, depth far. Assumes the field is empty outside the box.
+  bool skip_missed_rays = false;
+  double miss_margin = 0.02;
+  // Outputs computed only when asked (default: both; undefined tensors when off).
+  bool return_depth = true;
+  bool return_opacity = true;
+
+  // Turns on every inference skip above (not the output flags).
+  void EnableInferenceSkips() {
+    early_termination = true;
+    skip_missed_rays = true;
+  }
 
   template <typename V>
   void Visit(V&& v) {
@@ -57,7 +79,8 @@ struct RenderOptions {
     v("chunk_rays", chunk_rays, "Rays per parallel work item without gradients");
   }
   // Throws InvalidOptions: resolution 1..4096, num_coarse >= 2 (>= 4 with importance samples),
-  // num_importance >= 0, 0 <= near < far finite, box_warp > 0, chunk_rays >= 1.
+  // num_importance >= 0, 0 <= near < far finite, box_warp > 0, chunk_rays >= 1,
+  // termination_transmittance in [0,1), termination_block >= 1, miss_margin in [0,1].
   void Validate() const;
 };
 
@@ -92,8 +115,8 @@ Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, doubl
 // Per-ray results.
 struct RayRenderOutput {
   torch::Tensor features;   // [B,N,C] in [-1,1] (decoder margin: [-1.002,1.002]); -1 for empty rays
-  torch::Tensor opacity;    // [B,N]   in [0,1]
-  torch::Tensor depth;      // [B,N]   expected depth; `far` for empty rays
+  torch::Tensor opacity;    // [B,N]   in [0,1] (return_opacity)
+  torch::Tensor depth;      // [B,N]   expected depth; `far` for empty rays (return_depth)
   torch::Tensor weights;    // [B,N,S-1] interval weights (return_weights), S = coarse + importance
   torch::Tensor midpoints;  // [B,N,S-1] interval midpoint depths (return_weights)
 };
@@ -102,8 +125,8 @@ struct RayRenderOutput {
 struct RenderOutput {
   torch::Tensor features;   // [B,C,R,R] in [-1,1] as above
   torch::Tensor rgb;        // [B,3,R,R] = features channels 0..2 (a view)
-  torch::Tensor opacity;    // [B,1,R,R] in [0,1]
-  torch::Tensor depth;      // [B,1,R,R]
+  torch::Tensor opacity;    // [B,1,R,R] in [0,1] (return_opacity)
+  torch::Tensor depth;      // [B,1,R,R] (return_depth)
   torch::Tensor weights;    // [B,R*R,S-1] (return_weights)
   torch::Tensor midpoints;  // [B,R*R,S-1] (return_weights)
 };
