@@ -68,6 +68,34 @@ bool FiniteGradNorm(const std::vector<torch::Tensor>& params, const torch::Devic
   return false;
 }
 
+// Adam moments of `names` into the archive as <m>NAME / <v>NAME (parameters never stepped have none).
+void StoreAdamMoments(TensorArchive& archive, const std::vector<std::string>& names,
+                      const std::vector<torch::Tensor>& exp_avg, const std::vector<torch::Tensor>& exp_avg_sq,
+                      const std::string& m, const std::string& v) {
+  for (size_t i = 0; i < names.size(); ++i) {
+    if (!exp_avg[i].defined()) continue;
+    archive.tensors.emplace_back(m + names[i], exp_avg[i]);
+    archive.tensors.emplace_back(v + names[i], exp_avg_sq[i]);
+  }
+}
+
+// The inverse of StoreAdamMoments, with the per-parameter step counts `step_counts` (JSON array).
+void RestoreAdamMoments(const TensorArchive& archive, const std::string& file, const std::vector<std::string>& names,
+                        const nlohmann::json& step_counts, std::vector<int64_t>& steps,
+                        std::vector<torch::Tensor>& exp_avg, std::vector<torch::Tensor>& exp_avg_sq,
+                        const std::string& m, const std::string& v, const torch::Device& device,
+                        const char* what) {
+  if (step_counts.size() != names.size()) throw ModelLoad(file + ": " + what + " state of another model");
+  for (size_t i = 0; i < names.size(); ++i) {
+    steps[i] = step_counts[i].get<int64_t>();
+    exp_avg[i] = torch::Tensor();
+    exp_avg_sq[i] = torch::Tensor();
+    if (steps[i] == 0) continue;
+    exp_avg[i] = archive.Get(m + names[i], file).to(device).clone();
+    exp_avg_sq[i] = archive.Get(v + names[i], file).to(device).clone();
+  }
+}
+
 // One Adam update (see the header comment) of the parameters with gradients, clipped to `clip`.
 void AdamUpdate(const std::vector<torch::Tensor>& params, std::vector<torch::Tensor>& exp_avg,
                 std::vector<torch::Tensor>& exp_avg_sq, std::vector<int64_t>& steps, double grad_norm, double clip,
@@ -562,22 +590,14 @@ void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source)
                   {"data", source != nullptr ? source->State() : nlohmann::json()}};
   for (const auto& item : model_->named_parameters(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
   for (const auto& item : model_->named_buffers(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
-  for (size_t i = 0; i < params_.size(); ++i) {
-    if (!exp_avg_[i].defined()) continue;
-    archive.tensors.emplace_back("m/" + names_[i], exp_avg_[i]);
-    archive.tensors.emplace_back("v/" + names_[i], exp_avg_sq_[i]);
-  }
+  StoreAdamMoments(archive, names_, exp_avg_, exp_avg_sq_, "m/", "v/");
   if (!disc_.is_empty()) {
     nlohmann::json d_steps = nlohmann::json::array();
     for (int64_t s : d_param_steps_) d_steps.push_back(s);
     archive.meta["d_param_steps"] = d_steps;
     for (const auto& item : disc_->named_parameters(true)) archive.tensors.emplace_back("d/" + item.key(), item.value());
     for (const auto& item : disc_->named_buffers(true)) archive.tensors.emplace_back("d/" + item.key(), item.value());
-    for (size_t i = 0; i < d_params_.size(); ++i) {
-      if (!d_exp_avg_[i].defined()) continue;
-      archive.tensors.emplace_back("dm/" + d_names_[i], d_exp_avg_[i]);
-      archive.tensors.emplace_back("dv/" + d_names_[i], d_exp_avg_sq_[i]);
-    }
+    StoreAdamMoments(archive, d_names_, d_exp_avg_, d_exp_avg_sq_, "dm/", "dv/");
   }
   {
     at::Generator cpu = DefaultGenerator(torch::kCPU);
@@ -616,29 +636,13 @@ void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
     };
     for (auto& item : model_->named_parameters(true)) copy("w/" + item.key(), item.value());
     for (auto& item : model_->named_buffers(true)) copy("w/" + item.key(), item.value());
-    const auto& steps = archive.meta.at("param_steps");
-    if (steps.size() != params_.size()) throw ModelLoad(file + ": optimiser state of another model");
-    for (size_t i = 0; i < params_.size(); ++i) {
-      param_steps_[i] = steps[i].get<int64_t>();
-      exp_avg_[i] = torch::Tensor();
-      exp_avg_sq_[i] = torch::Tensor();
-      if (param_steps_[i] == 0) continue;
-      exp_avg_[i] = archive.Get("m/" + names_[i], file).to(device_).clone();
-      exp_avg_sq_[i] = archive.Get("v/" + names_[i], file).to(device_).clone();
-    }
+    RestoreAdamMoments(archive, file, names_, archive.meta.at("param_steps"), param_steps_, exp_avg_, exp_avg_sq_,
+                       "m/", "v/", device_, "optimiser");
     if (!disc_.is_empty()) {
       for (auto& item : disc_->named_parameters(true)) copy("d/" + item.key(), item.value());
       for (auto& item : disc_->named_buffers(true)) copy("d/" + item.key(), item.value());
-      const auto& d_steps = archive.meta.at("d_param_steps");
-      if (d_steps.size() != d_params_.size()) throw ModelLoad(file + ": discriminator state of another model");
-      for (size_t i = 0; i < d_params_.size(); ++i) {
-        d_param_steps_[i] = d_steps[i].get<int64_t>();
-        d_exp_avg_[i] = torch::Tensor();
-        d_exp_avg_sq_[i] = torch::Tensor();
-        if (d_param_steps_[i] == 0) continue;
-        d_exp_avg_[i] = archive.Get("dm/" + d_names_[i], file).to(device_).clone();
-        d_exp_avg_sq_[i] = archive.Get("dv/" + d_names_[i], file).to(device_).clone();
-      }
+      RestoreAdamMoments(archive, file, d_names_, archive.meta.at("d_param_steps"), d_param_steps_, d_exp_avg_,
+                         d_exp_avg_sq_, "dm/", "dv/", device_, "discriminator");
     }
     sr_trained_before_ = archive.meta.value("sr_trained_before", false);
     step_ = archive.meta.at("step").get<int64_t>();
