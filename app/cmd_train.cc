@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 
 #include <fcntl.h>
 #include <spawn.h>
@@ -71,6 +72,8 @@ struct TrainCommandOptions {
   std::string init_weights;
   // Sample grid every this many steps (0 = only at the end).
   int64_t sample_every = 200;
+  // Share of synthetic multi-view pairs per epoch (0 = none; needs a dataset built with --synthetic).
+  double synthetic_fraction = 0.0;
   train::TrainerOptions trainer;
   train::DistributedOptions dist;
   CommonOptions common;
@@ -93,6 +96,8 @@ struct TrainCommandOptions {
     v("perceptual", perceptual, "Perceptual term: mobilenet, pyramid (stand-in) or none");
     v("progress", progress, "Progress line on stderr");
     v("sample_every", sample_every, "Sample grid RUN/samples/step-N.png every N steps, and at the end (0 = end only)");
+    v("synthetic_fraction", synthetic_fraction,
+      "Share of synthetic multi-view pairs in each epoch, 0..1 (0 = none; the dataset needs --synthetic N)");
     v("device", trainer.device, "Device: cpu or cuda[:N]");
     v("lr", trainer.lr, "Adam learning rate");
     v("grad_clip", trainer.grad_clip, "Global gradient-norm clip (<= 0: none)");
@@ -123,6 +128,7 @@ struct TrainCommandOptions {
     AVATAR_CHECK_OPTION(steps >= 0 && curriculum_steps >= 0) << "--steps and --curriculum-steps must be >= 0";
     AVATAR_CHECK_OPTION(batch_size >= 1) << "--batch-size must be >= 1";
     AVATAR_CHECK_OPTION(sample_every >= 0) << "--sample-every must be >= 0";
+    AVATAR_CHECK_OPTION(synthetic_fraction >= 0.0 && synthetic_fraction <= 1.0) << "--synthetic-fraction must be in 0..1";
     AVATAR_CHECK_OPTION(init_weights.empty() || fs::exists(init_weights))
         << "--init-weights: no such file '" << init_weights << "'";
     AVATAR_CHECK_OPTION(perceptual == "mobilenet" || perceptual == "pyramid" || perceptual == "none")
@@ -149,8 +155,9 @@ ModelConfig ResolveConfig(const std::string& c) {
 // (epoch, batches taken in it), restored by replaying the epoch's order up to it.
 class LoaderSource : public train::BatchSource {
  public:
-  LoaderSource(const train::TrainDataset& dataset, const train::LoaderOptions& options)
-      : loader_(dataset, options) {
+  LoaderSource(const train::TrainDataset& dataset, const train::TrainDataset* synthetic,
+               const train::LoaderOptions& options)
+      : loader_(dataset, synthetic, options) {
     if (loader_.BatchesPerEpoch() == 0) throw InvalidInput("the training split has no batches");
     loader_.StartEpoch(0);
   }
@@ -268,7 +275,10 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   lo.batch_size = o.batch_size * static_cast<int>(o.dist.world_size);
   lo.drop_last = parallel;
   lo.seed = static_cast<uint64_t>(o.trainer.seed);
-  LoaderSource loader_source(dataset, lo);
+  lo.synthetic_fraction = o.synthetic_fraction;
+  std::optional<train::TrainDataset> synthetic;
+  if (o.synthetic_fraction > 0.0) synthetic = train::TrainDataset::Open(o.data, "synthetic");
+  LoaderSource loader_source(dataset, synthetic ? &*synthetic : nullptr, lo);
   std::unique_ptr<train::ShardedBatchSource> shards;
   if (parallel) shards = std::make_unique<train::ShardedBatchSource>(loader_source, o.dist.rank, o.dist.world_size);
   train::BatchSource& source = parallel ? static_cast<train::BatchSource&>(*shards) : loader_source;

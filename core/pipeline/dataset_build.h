@@ -13,6 +13,10 @@
 //   items/ID.json        per-face record (the manifest of done items; written last, atomically)
 //   dataset.json         {"labels": [[file, [25 floats]], ...], "size", "split", "shards", counts}
 //   records.json, pairs.json, split.json, shards/{train,val}.pt, build.log
+// With --synthetic N (synthetic_head.h): syn_* frames in the same folders (renders of 2.5D heads
+// made from the TRAINING photos only), items/syn_*.json per head, synthetic.json (their records),
+// their pairs at the end of pairs.json (kind "synthetic") and shards/synthetic.pt, which the
+// loader opens as the split "synthetic" (train/val shards are the same as without it).
 // Everything is written through temporary files and renamed, so a cancelled build leaves only
 // complete items, and a rerun skips them.
 
@@ -44,7 +48,9 @@ struct DatasetBuildOptions {
   std::string out_dir;
   // Side of the stored images: 128, 256 or 512.
   int size = 128;
-  // Synthetic multi-view pairs (not built by this version: must be 0).
+  // Synthetic multi-view pairs to draw (0 = none). Each training photo becomes a 2.5D head,
+  // rendered at just enough views (plus their mirror images) for N distinct pairs over all heads;
+  // pairs join two views of one head (same mirror group).
   int synthetic = 0;
   // Seed of every random choice (pair sampling, split).
   int64_t seed = 1;
@@ -65,7 +71,7 @@ struct DatasetBuildOptions {
   void Visit(V&& v) {
     v("out", out_dir, "Output folder of the dataset");
     v("size", size, "Side of the stored images (128, 256 or 512)");
-    v("synthetic", synthetic, "Synthetic multi-view pairs (not in this version: 0)");
+    v("synthetic", synthetic, "Synthetic multi-view pairs from 2.5D heads of the training photos (0 = none)");
     v("seed", seed, "Seed of the pair sampling and the split");
     v("val_identities", val_identities, "Identities held out for validation");
     v("clip_frames", clip_frames, "Frames sampled per clip");
@@ -86,6 +92,10 @@ struct DatasetBuildReport {
   int val_identities = 0;
   int train_pairs = 0;   // pairs in shards/train.pt
   int val_pairs = 0;     // pairs in shards/val.pt
+  int synthetic_heads = 0;   // training photos made into synthetic heads
+  int synthetic_frames = 0;  // rendered synthetic frames (both mirror groups)
+  int synthetic_pairs = 0;   // pairs in shards/synthetic.pt
+  double synthetic_seconds = 0.0;  // time spent rendering synthetic frames in this run
   double seconds = 0.0;  // wall time of this run
 };
 

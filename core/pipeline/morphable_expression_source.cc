@@ -22,6 +22,33 @@ std::string MatBytes(const cv::Mat& m) {
 
 }  // namespace
 
+morphable::Beta ExpressionBeta(const morphable::MorphableModel& model, const morphable::Beta& fit_beta,
+                               const Expression& expression) {
+  const int k = model.num_expression();
+  AVATAR_CHECK_INPUT(static_cast<int>(fit_beta.size()) == k)
+      << "the fit has " << fit_beta.size() << " expression coefficients, the morphable model has " << k;
+  morphable::Beta beta = expression.coefficients_absolute ? model.ZeroBeta() : fit_beta;
+  const std::vector<float>& coefficients = expression.coefficients;
+  if (!coefficients.empty()) {
+    AVATAR_CHECK_INPUT(static_cast<int>(coefficients.size()) == k)
+        << "expression has " << coefficients.size() << " coefficients, the morphable model has " << k;
+    for (int i = 0; i < k; ++i) {
+      AVATAR_CHECK_INPUT(std::isfinite(coefficients[i])) << "expression coefficient " << i << " is not finite";
+      beta[i] += coefficients[i];
+    }
+  }
+  std::map<std::string, float> controls;
+  for (const auto& [name, value] : expression.controls) {
+    if (value != 0.0f) controls[name] = value;
+  }
+  // An explicit 0 of any name is neutral; other names are checked (and rejected when unknown) here.
+  if (!controls.empty()) {
+    const morphable::Beta offset = model.ExpressionFromControls(controls);
+    for (int i = 0; i < k; ++i) beta[i] += offset[i];
+  }
+  return beta;
+}
+
 MorphableExpressionSource::MorphableExpressionSource(const morphable::MorphableModel& model, morphable::FitResult fit,
                                                      morphable::Texture texture)
     : model_(model), fit_(std::move(fit)), texture_(std::move(texture)) {
@@ -30,7 +57,7 @@ MorphableExpressionSource::MorphableExpressionSource(const morphable::MorphableM
 
 cv::Mat MorphableExpressionSource::Render(const Expression& expression, int size) const {
   AVATAR_CHECK_INPUT(size >= 8 && size <= 4096) << "expression image size must be 8..4096, got " << size;
-  const morphable::Beta beta = model_.ExpressionFromControls(expression.controls);
+  const morphable::Beta beta = Coefficients(expression);
   morphable::RenderOptions options;
   options.supersample = 2;  // antialiased edges: the encoder sees no stair steps
   const morphable::RenderResult r =
@@ -38,6 +65,10 @@ cv::Mat MorphableExpressionSource::Render(const Expression& expression, int size
   cv::Mat bgr;
   r.image.convertTo(bgr, CV_8UC3, 255.0);
   return bgr;
+}
+
+morphable::Beta MorphableExpressionSource::Coefficients(const Expression& expression) const {
+  return ExpressionBeta(model_, fit_.beta, expression);
 }
 
 std::vector<std::string> MorphableExpressionSource::ControlNames() const {

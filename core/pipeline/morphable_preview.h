@@ -4,10 +4,10 @@
 // `animate` show it when the user chooses it (--renderer morphable) or when no neural model
 // loads, always labelled "Preview: morphable model (...why...)".
 //
-// Pose convention (ViewPose): the head turns by yaw (> 0: towards the image's left), pitch
-// (> 0: up) and roll (> 0: clockwise in the image) in front of the fixed frontal EG3D camera,
-// applied in that order about the world axes (the same picture as an orbit camera with
-// azimuth, elevation and roll); zoom moves the camera closer (distance 2.7 / zoom).
+// Pose: every frame is rendered at CameraForView(request.view, the fit's camera C_s)
+// (frame_source.h), the same camera the neural source uses; at SourcePose() that is C_s itself,
+// so the preview lines up with the photo. Expression: ExpressionBeta (one function with the
+// neural session's I_exp).
 
 #include <memory>
 #include <string>
@@ -18,13 +18,10 @@
 #include "core/morphable/morphable.h"
 #include "core/pipeline/driving.h"
 #include "core/pipeline/frame_source.h"
+#include "core/pipeline/morphable_expression_source.h"
 
 namespace avatar {
 
-// Head rotation of a view pose, as a matrix applied to world points (about the origin).
-cv::Matx33d HeadRotation(const ViewPose& pose);
-// Inverse of HeadRotation for the angles (zoom = 1). Angles in (-180, 180], pitch in [-90, 90].
-ViewPose PoseFromRotation(const cv::Matx33d& rotation);
 // The head pose of a fit: its world->camera rotation relative to the frontal camera's.
 ViewPose PoseOfFit(const morphable::FitResult& fit);
 
@@ -46,8 +43,12 @@ class MorphablePreviewSource : public FrameSource {
   int CoefficientCount() const override;
   ViewPose SourcePose() const override { return source_pose_; }
   SourceOverlay Overlay() const override { return overlay_; }
-  // beta = (coefficients_absolute ? 0 : fit beta) + coefficients + sum(control * direction).
+  // The mesh with ExpressionBeta(model, fit, request.expression) seen by
+  // CameraForView(request.view, fit camera). Throws InvalidInput (unknown control, wrong
+  // coefficient count), InvalidOptions (size, pose), Cancelled.
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+  // The expression coefficients Render uses for `expression` (ExpressionBeta on this fit).
+  morphable::Beta Coefficients(const FrameExpression& expression) const;
 
   const morphable::FitResult& Fit() const { return fit_; }
 
@@ -59,13 +60,6 @@ class MorphablePreviewSource : public FrameSource {
   ViewPose source_pose_;
   std::string label_;
 };
-
-// The named controls whose combination best matches expression coefficients `beta` (least
-// squares over the control directions, values clamped to [0,1]). Lets a driver measured as
-// coefficients drive a renderer that only takes named controls (the neural session).
-std::map<std::string, float> ControlsFromCoefficients(const morphable::MorphableModel& model,
-                                                      const std::vector<float>& beta);
-
 
 // Measures driving frames: tracks the face through the video and fits the morphable model
 // per frame (expression coefficients + head pose). `landmarks_of` returns the frame's

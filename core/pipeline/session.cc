@@ -10,11 +10,13 @@
 #include <torch/torch.h>
 #include <opencv2/imgproc.hpp>
 
-#include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/io/resources.h"
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
+#include "core/pipeline/avatar_file.h"
+#include "core/pipeline/avatar_state.h"
+#include "core/pipeline/image_tensor.h"
 #include "core/pipeline/session_access.h"
 #include "core/pipeline/source_analysis.h"
 #include "core/render/camera.h"
@@ -23,115 +25,34 @@
 
 namespace avatar {
 
-// The cached per-source network state (see session.h).
-struct AvatarState {
-  ModelConfig config;
-  std::string model_id;
-  uint64_t id = 0;                 // unique within the process (cache key)
-  torch::Tensor canonical;         // T_c [1,3,C,P,P]
-  torch::Tensor appearance;        // T_p [1,3,C,P,P]
-  torch::Tensor base;              // T_c + T_p
-  std::array<float, 25> camera{};  // C_s
-  cv::Mat source;                  // [512,512] CV_8UC3 aligned portrait
-  std::shared_ptr<const ExpressionImageSource> expressions;
-  std::string refinement;          // JSON summary of the refinement of these planes ("" = one-shot)
-};
-
 namespace {
 
-std::atomic<uint64_t> g_next_avatar_id{1};
 std::mutex g_seed_mutex;  // torch::manual_seed is process-global
 
-std::map<std::string, ExpressionSourceLoader>& Loaders() {
-  static std::map<std::string, ExpressionSourceLoader> loaders;
-  return loaders;
-}
-std::mutex& LoadersMutex() {
-  static std::mutex m;
-  return m;
-}
-
-// BGR8 [H,W] -> RGB [1,3,size,size] in [-1,1].
-torch::Tensor ImageToTensor(const cv::Mat& bgr, int size, const char* what) {
-  AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << what << " must be a non-empty 8-bit BGR image";
-  cv::Mat resized;
-  if (bgr.rows != size || bgr.cols != size) {
-    cv::resize(bgr, resized, cv::Size(size, size), 0, 0, cv::INTER_AREA);
-  } else {
-    resized = bgr;
-  }
-  cv::Mat rgb;
-  cv::cvtColor(resized, rgb, cv::COLOR_BGR2RGB);
-  torch::Tensor t = torch::from_blob(rgb.data, {size, size, 3}, torch::kUInt8).clone();
-  return t.permute({2, 0, 1}).unsqueeze(0).to(torch::kFloat32).div(127.5).sub(1.0);  // [1,3,S,S]
-}
-
-// Single-channel mask (8-bit 0..255 or float 0..1) -> [1,1,size,size] in [0,1]; `fill` when empty.
-torch::Tensor MaskToTensor(const cv::Mat& mask, int size, float fill, const char* what) {
-  if (mask.empty()) return torch::full({1, 1, size, size}, fill);
-  AVATAR_CHECK_INPUT(mask.channels() == 1 && (mask.depth() == CV_8U || mask.depth() == CV_32F))
-      << what << " must be a single-channel 8-bit or float image";
-  cv::Mat f;
-  mask.convertTo(f, CV_32F, mask.depth() == CV_8U ? 1.0 / 255.0 : 1.0);
-  cv::resize(f, f, cv::Size(size, size), 0, 0, cv::INTER_AREA);
-  torch::Tensor t = torch::from_blob(f.data, {1, 1, size, size}, torch::kFloat32).clone();
-  AVATAR_CHECK_INPUT(torch::isfinite(t).all().item<bool>()) << what << " has non-finite values";
-  return t.clamp(0.0, 1.0);
-}
-
-// [1,3,H,W] in [-1,1] RGB -> BGR8.
-cv::Mat TensorToBgr(const torch::Tensor& rgb) {
-  torch::Tensor t = ((rgb[0].clamp(-1.0, 1.0) + 1.0) * 127.5).round().to(torch::kUInt8).permute({1, 2, 0}).contiguous();
-  cv::Mat img(static_cast<int>(t.size(0)), static_cast<int>(t.size(1)), CV_8UC3, t.data_ptr());
-  cv::Mat bgr;
-  cv::cvtColor(img, bgr, cv::COLOR_RGB2BGR);
-  return bgr;
-}
-
-// [1,1,H,W] -> CV_32FC1 (resized bilinearly to `size` when it differs).
-cv::Mat TensorToFloatMat(const torch::Tensor& x, int size) {
-  torch::Tensor t = x[0][0].to(torch::kFloat32).contiguous();
-  cv::Mat m(static_cast<int>(t.size(0)), static_cast<int>(t.size(1)), CV_32FC1, t.data_ptr());
-  cv::Mat out;
-  if (m.rows != size) {
-    cv::resize(m, out, cv::Size(size, size), 0, 0, cv::INTER_LINEAR);
-  } else {
-    out = m.clone();
-  }
-  return out;
-}
-
 render::Cameras CamerasFromLabel(const std::array<float, 25>& label) {
-  for (float v : label) AVATAR_CHECK_INPUT(std::isfinite(v)) << "source camera label has non-finite values";
+  for (float v : label) AVATAR_CHECK_INPUT(std::isfinite(v)) << "camera label has non-finite values";
   torch::Tensor t = torch::from_blob(const_cast<float*>(label.data()), {1, 25}, torch::kFloat32).clone();
   return render::CamerasFromLabels(t);
 }
 
-std::string Hex(uint64_t v) {
-  char buf[17];
-  std::snprintf(buf, sizeof(buf), "%016llx", static_cast<unsigned long long>(v));
-  return buf;
+// Throws InvalidInput unless the cam2world rotation of `label` is orthonormal (a rigid camera).
+void CheckRigidCamera(const std::array<float, 25>& label) {
+  double worst = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      double dot = 0.0;
+      for (int r = 0; r < 3; ++r) dot += static_cast<double>(label[r * 4 + i]) * label[r * 4 + j];
+      worst = std::max(worst, std::abs(dot - (i == j ? 1.0 : 0.0)));
+    }
+  }
+  AVATAR_CHECK_INPUT(worst < 1e-3) << "camera label: the cam2world rotation is not orthonormal";
 }
 
 }  // namespace
 
-std::string Expression::Key() const {
-  std::ostringstream key;
-  bool first = true;
-  for (const auto& [name, value] : controls) {
-    if (value == 0.0f) continue;  // an explicit 0 is the neutral value of every control
-    char buf[32];
-    std::snprintf(buf, sizeof(buf), "%.6g", static_cast<double>(value));
-    key << (first ? "" : ",") << name << "=" << buf;
-    first = false;
-  }
-  return key.str();
-}
-
-bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader) {
-  std::lock_guard<std::mutex> lock(LoadersMutex());
-  Loaders()[kind] = loader;
-  return true;
+uint64_t NextAvatarId() {
+  static std::atomic<uint64_t> next{1};
+  return next++;
 }
 
 Preset PresetFromName(const std::string& name) {
@@ -164,6 +85,10 @@ cv::Mat Avatar::SourceImage() const { return state_ ? state_->source.clone() : c
 
 std::vector<std::string> Avatar::ControlNames() const {
   return state_ && state_->expressions ? state_->expressions->ControlNames() : std::vector<std::string>{};
+}
+
+int Avatar::CoefficientCount() const {
+  return state_ && state_->expressions ? state_->expressions->CoefficientCount() : 0;
 }
 
 std::array<float, 25> Avatar::SourceCamera() const { return state_ ? state_->camera : std::array<float, 25>{}; }
@@ -305,7 +230,7 @@ Avatar Session::ReconstructFromAnalysis(const face::AlignedPortrait& portrait, c
     auto state = std::make_shared<AvatarState>();
     state->config = c;
     state->model_id = impl_->info.model_id;
-    state->id = g_next_avatar_id++;
+    state->id = NextAvatarId();
     state->canonical = model->CanonicalPlanes(source);
     ctx.Report("reconstruct", 0.4, "appearance tri-plane");
     const AppearanceOutput app = model->AppearancePlanes(source, eye_mouth, matte, state->canonical, cameras);
@@ -335,25 +260,38 @@ Avatar Session::Reconstruct(const cv::Mat& bgr, RunContext& ctx) const {
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const View& view, Preset preset,
                        RunContext* ctx) const {
-  AVATAR_CHECK_INPUT(avatar.valid()) << "Animate needs a reconstructed or loaded avatar";
-  const AvatarState& state = *avatar.state_;
-  AVATAR_CHECK_INPUT(state.model_id == impl_->info.model_id)
-      << "this avatar was made with model '" << state.model_id << "', the session runs '" << impl_->info.model_id
-      << "'; reconstruct it again with this model";
   render::OrbitPose pose;
   pose.yaw = view.yaw;
   pose.pitch = view.pitch;
   pose.roll = view.roll;
   pose.radius = view.radius;
   pose.Validate();
+  std::array<float, 25> label{};
+  {
+    torch::InferenceMode inference;
+    const render::Cameras camera{render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
+    const torch::Tensor t = render::LabelsFromCameras(camera).reshape({25}).contiguous();
+    std::copy(t.data_ptr<float>(), t.data_ptr<float>() + 25, label.begin());
+  }
+  return Animate(avatar, expression, label, preset, ctx);
+}
+
+Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
+                       Preset preset, RunContext* ctx) const {
+  AVATAR_CHECK_INPUT(avatar.valid()) << "Animate needs a reconstructed or loaded avatar";
+  const AvatarState& state = *avatar.state_;
+  AVATAR_CHECK_INPUT(state.model_id == impl_->info.model_id)
+      << "this avatar was made with model '" << state.model_id << "', the session runs '" << impl_->info.model_id
+      << "'; reconstruct it again with this model";
   try {
     torch::InferenceMode inference;
+    const render::Cameras cameras = CamerasFromLabel(camera);  // Throws InvalidInput for a bad label.
+    CheckRigidCamera(camera);
     GohaModel& model = impl_->model;
     const ModelConfig& c = model->config();
     if (ctx != nullptr) ctx->ThrowIfCancelled();
     const torch::Tensor planes = impl_->PlanesFor(state, expression, ctx);
     if (ctx != nullptr) ctx->Report("animate", 0.3, "volume render");
-    render::Cameras cameras{render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
     const int resolution = preset == Preset::kPreview ? std::min(64, c.render_size) : c.render_size;
     const render::RenderOutput out = model->Render(planes, cameras, resolution);
     Frame frame;
@@ -388,92 +326,12 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
 
 void Session::SaveAvatar(const Avatar& avatar, const std::filesystem::path& path) const {
   AVATAR_CHECK_INPUT(avatar.valid()) << "cannot save an empty avatar";
-  const AvatarState& s = *avatar.state_;
-  TensorArchive archive;
-  archive.kind = "goha-avatar";
-  archive.meta = {{"config", nlohmann::json::parse(ModelConfigToJson(s.config))},
-                  {"model_id", s.model_id},
-                  {"camera", std::vector<float>(s.camera.begin(), s.camera.end())},
-                  {"expression_kind", s.expressions ? s.expressions->Kind() : std::string()}};
-  if (!s.refinement.empty()) archive.meta["refinement"] = nlohmann::json::parse(s.refinement);
-  archive.tensors.emplace_back("avatar.canonical", s.canonical);
-  archive.tensors.emplace_back("avatar.appearance", s.appearance);
-  cv::Mat src = s.source.isContinuous() ? s.source : s.source.clone();
-  archive.tensors.emplace_back("avatar.source_image",
-                               torch::from_blob(src.data, {src.rows, src.cols, 3}, torch::kUInt8).clone());
-  const std::string bytes = s.expressions ? s.expressions->Serialize() : std::string();
-  archive.tensors.emplace_back(
-      "avatar.expression_source",
-      torch::from_blob(const_cast<char*>(bytes.data()), {static_cast<int64_t>(bytes.size())}, torch::kUInt8).clone());
-  WriteTensorArchive(path, archive);
+  WriteAvatarFile(*avatar.state_, path);
 }
 
 Avatar Session::LoadAvatar(const std::filesystem::path& path) const {
-  const TensorArchive archive = ReadTensorArchive(path, "goha-avatar");
-  const std::string file = path.string();
-  auto state = std::make_shared<AvatarState>();
-  std::string kind;
-  try {
-    state->config = ModelConfigFromJson(archive.meta.at("config").dump());
-    state->model_id = archive.meta.at("model_id").get<std::string>();
-    const auto camera = archive.meta.at("camera").get<std::vector<float>>();
-    if (camera.size() != 25) throw ModelLoad(file + ": camera label must have 25 values");
-    std::copy(camera.begin(), camera.end(), state->camera.begin());
-    kind = archive.meta.at("expression_kind").get<std::string>();
-    if (archive.meta.contains("refinement")) state->refinement = archive.meta.at("refinement").dump();
-  } catch (const nlohmann::json::exception& e) {
-    throw ModelLoad(file + ": avatar metadata is incomplete: " + e.what());
-  } catch (const InvalidOptions& e) {
-    throw ModelLoad(file + ": avatar holds an invalid model config: " + e.what());
-  }
-  const ModelConfig& c = impl_->model->config();
-  if (state->config != c) {
-    throw ModelLoad(file + ": the avatar was made with model config '" + state->config.name +
-                    "' (model '" + state->model_id + "') but this session runs '" + c.name +
-                    "'; reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
-  }
-  if (state->model_id != impl_->info.model_id) {
-    throw ModelLoad(file + ": the avatar was made with model '" + state->model_id + "' but this session runs '" +
-                    impl_->info.model_id +
-                    "'; reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
-  }
-  const std::vector<int64_t> plane_shape = {1, 3, c.plane_channels, c.plane_size(), c.plane_size()};
-  state->canonical = archive.Get("avatar.canonical", file);
-  state->appearance = archive.Get("avatar.appearance", file);
-  for (const torch::Tensor* t : {&state->canonical, &state->appearance}) {
-    if (t->sizes() != plane_shape || t->scalar_type() != torch::kFloat32) {
-      std::ostringstream why;
-      why << file << ": avatar planes have shape " << t->sizes() << ", expected " << c10::IntArrayRef(plane_shape);
-      throw ModelLoad(why.str());
-    }
-  }
-  state->base = state->canonical + state->appearance;
-  const torch::Tensor& src = archive.Get("avatar.source_image", file);
-  if (src.dim() != 3 || src.size(2) != 3 || src.scalar_type() != torch::kUInt8) {
-    throw ModelLoad(file + ": avatar source image is malformed");
-  }
-  state->source =
-      cv::Mat(static_cast<int>(src.size(0)), static_cast<int>(src.size(1)), CV_8UC3, const_cast<void*>(src.data_ptr()))
-          .clone();
-  const torch::Tensor& bytes = archive.Get("avatar.expression_source", file);
-  if (!kind.empty()) {
-    ExpressionSourceLoader loader = nullptr;
-    {
-      std::lock_guard<std::mutex> lock(LoadersMutex());
-      auto it = Loaders().find(kind);
-      if (it != Loaders().end()) loader = it->second;
-    }
-    if (loader == nullptr) throw ModelLoad(file + ": unknown expression source '" + kind + "' in this build");
-    try {
-      state->expressions =
-          loader(std::string(static_cast<const char*>(bytes.data_ptr()), static_cast<size_t>(bytes.numel())));
-    } catch (const Error& e) {
-      throw ModelLoad(file + ": expression source could not be restored: " + e.what());
-    }
-  }
-  state->id = g_next_avatar_id++;
   Avatar avatar;
-  avatar.state_ = state;
+  avatar.state_ = ReadAvatarFile(path, impl_->model->config(), impl_->info.model_id);
   return avatar;
 }
 
@@ -545,7 +403,7 @@ Avatar SessionAccess::WithPlanes(const Avatar& avatar, const torch::Tensor& cano
   state->appearance = appearance.detach().to(old.appearance.device(), torch::kFloat32).clone();
   state->base = state->canonical + state->appearance;
   state->refinement = refinement_json;
-  state->id = g_next_avatar_id++;
+  state->id = NextAvatarId();
   Avatar out;
   out.state_ = state;
   return out;
@@ -557,18 +415,6 @@ torch::Tensor SessionAccess::ImageTensor(const cv::Mat& bgr, int size, const cha
 
 torch::Tensor SessionAccess::MaskTensor(const cv::Mat& mask, int size, float fill, const char* what) {
   return MaskToTensor(mask, size, fill, what);
-}
-
-AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path) {
-  const TensorArchive archive = ReadTensorArchive(path, "goha-avatar");
-  AvatarFileInfo info;
-  try {
-    info.model_id = archive.meta.at("model_id").get<std::string>();
-    info.config_name = archive.meta.at("config").at("name").get<std::string>();
-  } catch (const nlohmann::json::exception& e) {
-    throw ModelLoad(path.string() + ": avatar metadata is incomplete: " + e.what());
-  }
-  return info;
 }
 
 face::AlignedPortrait PortraitFromAlignedImage(const cv::Mat& bgr) {

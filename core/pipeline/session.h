@@ -3,7 +3,12 @@
 //
 //   Session session(options);                      // loads the model (or random weights on request)
 //   Avatar avatar = session.Reconstruct(bgr, ctx); // face analysis, fit, T_c and T_p (cached in the avatar)
-//   Frame f = session.Animate(avatar, {{"jawOpen", 0.6f}}, View{20, 5}, Preset::kPreview);
+//   Frame f = session.Animate(avatar, {{{"jawOpen", 0.6f}}}, View{20, 5}, Preset::kPreview);
+//   Frame g = session.Animate(avatar, expression, CameraForView(pose, avatar.SourceCamera()), preset);
+//
+// Expressions (expression.h) are morphable expression coefficients relative to the portrait's
+// fitted expression (or absolute); the avatar's expression source renders I_exp from exactly
+// those coefficients (ExpressionBeta), named controls being one way to write them.
 //
 // What Animate recomputes (instrumented by Counters()):
 //   - a new view only: no encoder; one volume render of the cached planes T_c + T_p + T_e;
@@ -28,27 +33,23 @@
 #include <opencv2/core.hpp>
 
 #include "core/face/face_types.h"
+#include "core/pipeline/expression.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
-
-// Expression controls by name (e.g. jawOpen, smile) -> value, usually in [0,1] (or [-1,1] for
-// signed controls). An empty map is the neutral expression.
-struct Expression {
-  std::map<std::string, float> controls;
-  // Canonical text form ("jawOpen=0.5,smile=0.2"), used as the cache key.
-  std::string Key() const;
-};
 
 // Renders I_exp: the source identity with a target expression at the fixed frontal camera, black
 // background (the morphable model's job; tests plug in synthetic sources).
 class ExpressionImageSource {
  public:
   virtual ~ExpressionImageSource() = default;
-  // [size,size] CV_8UC3 BGR. Throws InvalidInput for unknown control names. Must be thread-safe.
+  // [size,size] CV_8UC3 BGR of the whole Expression (controls, coefficients, absolute). Throws
+  // InvalidInput for unknown control names or a wrong coefficient count. Must be thread-safe.
   virtual cv::Mat Render(const Expression& expression, int size) const = 0;
   // Names of the controls Render understands.
   virtual std::vector<std::string> ControlNames() const = 0;
+  // Length of Expression::coefficients Render understands (0 = coefficients are not supported).
+  virtual int CoefficientCount() const { return 0; }
   // Type tag and state, stored in avatar files (see RegisterExpressionSourceLoader).
   virtual std::string Kind() const = 0;
   virtual std::string Serialize() const = 0;
@@ -59,7 +60,9 @@ using ExpressionSourceLoader = std::shared_ptr<const ExpressionImageSource> (*)(
 // Registers the loader of a Kind() (call once at start-up, e.g. from a static initialiser). Returns true.
 bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader);
 
-// Camera looking at the head from an orbit (degrees; EG3D conventions as in core/render/camera.h).
+// Camera looking at the world origin from an orbit (degrees; EG3D conventions, render::OrbitPose
+// in core/render/camera.h, with the default intrinsics). For `render` and benchmarks; frame
+// sources pass the camera of a head pose instead (CameraForView, frame_source.h).
 struct View {
   double yaw = 0.0;     // positive: camera moves towards the subject's left (+x)
   double pitch = 0.0;   // positive: camera above, looking down; |pitch| < 90
@@ -151,7 +154,7 @@ std::string DescribeModel(const ModelInfo& info);
 // (see ModelInfo::origin). Throws MissingData, saying where it looked, when there is none.
 std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin = nullptr);
 
-struct AvatarState;  // defined in session.cc
+struct AvatarState;  // defined in avatar_state.h
 
 // A reconstructed avatar: immutable, cheap to copy (shared state).
 class Avatar {
@@ -162,6 +165,8 @@ class Avatar {
   cv::Mat SourceImage() const;
   // Expression controls the avatar's expression source understands.
   std::vector<std::string> ControlNames() const;
+  // Length of Expression::coefficients the avatar's expression source understands (0 = none).
+  int CoefficientCount() const;
   // The source camera label (25 floats).
   std::array<float, 25> SourceCamera() const;
   // JSON summary of the per-portrait refinement (core/pipeline/refine.h) these planes had, or ""
@@ -200,12 +205,18 @@ class Session {
   // MissingData (face models not installed), Cancelled.
   Avatar Reconstruct(const cv::Mat& bgr, RunContext& ctx) const;
 
-  // One frame. Throws InvalidInput (invalid avatar, unknown control, bad view), Cancelled.
+  // One frame seen by the orbit camera `view`. Throws InvalidInput (invalid avatar, unknown
+  // control, wrong coefficient count), InvalidOptions (bad view), Cancelled.
   Frame Animate(const Avatar& avatar, const Expression& expression, const View& view, Preset preset,
                 RunContext* ctx = nullptr) const;
+  // One frame seen by `camera`, an EG3D label (25 floats: cam2world + normalised intrinsics),
+  // e.g. CameraForView(pose, avatar.SourceCamera()); the avatar's SourceCamera() renders the
+  // source view. Throws InvalidInput (as above, or a label that is not a rigid camera), Cancelled.
+  Frame Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
+                Preset preset, RunContext* ctx = nullptr) const;
 
-  // Avatar files (.avatar): planes, camera, source image, expression source, model id.
-  // Save throws Io; Load throws Io / ModelLoad (corrupt file, other model or config).
+  // Avatar files (.avatar, format in avatar_file.h): planes, camera, source image, expression
+  // source, model id. Save throws Io; Load throws Io / ModelLoad (corrupt file, other model or config).
   void SaveAvatar(const Avatar& avatar, const std::filesystem::path& path) const;
   Avatar LoadAvatar(const std::filesystem::path& path) const;
 

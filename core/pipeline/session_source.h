@@ -6,7 +6,6 @@
 #include <memory>
 #include <string>
 
-#include "core/morphable/morphable_model.h"
 #include "core/pipeline/frame_source.h"
 #include "core/pipeline/session.h"
 
@@ -14,29 +13,28 @@ namespace avatar {
 
 class SessionFrameSource : public FrameSource {
  public:
-  // `session` renders `avatar`; `random_weights` only changes the label. With `model`, raw
-  // driver coefficients are turned into named controls (ControlsFromCoefficients). `overlay`
-  // is the source analysis's, for the source panel.
+  // `session` renders `avatar`; `random_weights` only changes the label. `overlay` is the
+  // source analysis's, for the source panel.
   SessionFrameSource(std::shared_ptr<const Session> session, Avatar avatar, bool random_weights,
-                     const morphable::MorphableModel* model = nullptr, SourceOverlay overlay = {});
+                     SourceOverlay overlay = {});
 
   std::string Label() const override;
   bool SupportsPose() const override { return true; }
   std::vector<std::string> ExpressionControls() const override { return avatar_.ControlNames(); }
+  int CoefficientCount() const override { return avatar_.CoefficientCount(); }
+  // The head pose of the source camera C_s (PoseOfCamera).
   ViewPose SourcePose() const override { return source_pose_; }
   SourceOverlay Overlay() const override { return overlay_; }
-  // Named controls and the camera drive the network; raw driver coefficients become named
-  // controls through the morphable model (without one they are ignored).
+  // Session::Animate at Camera(request.view), with request.expression passed on unchanged (the
+  // avatar's expression source turns it into I_exp, ExpressionBeta for the morphable one).
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
-
-  // Our head-pose convention -> the session's orbit camera (exposed for tests).
-  static View ToView(const ViewPose& pose);
+  // The camera a view pose is rendered from: CameraForView(pose, avatar.SourceCamera()).
+  CameraLabel25 Camera(const ViewPose& pose) const;
 
  private:
   std::shared_ptr<const Session> session_;
   Avatar avatar_;
   bool random_weights_;
-  const morphable::MorphableModel* model_;
   ViewPose source_pose_;
   SourceOverlay overlay_;
   std::string label_;

@@ -69,7 +69,7 @@ std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, 
     avatar = session->ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
   }
   return std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
-                                              analysis.model, analysis.overlay);
+                                              analysis.overlay);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "core/train/dataset.h"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <numeric>
@@ -31,7 +32,8 @@ torch::Tensor Unit(const torch::Tensor& u8) { return u8.to(torch::kFloat32).div(
 }  // namespace
 
 TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split) {
-  if (split != "train" && split != "val") throw InvalidOptions("split must be train or val, got '" + split + "'");
+  if (split != "train" && split != "val" && split != "synthetic")
+    throw InvalidOptions("split must be train, val or synthetic, got '" + split + "'");
   const fs::path json_path = fs::path(dir) / "dataset.json";
   const std::vector<char> json_bytes = ReadAll(json_path);
   nlohmann::json ds;
@@ -41,6 +43,9 @@ TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split
   try {
     ds = nlohmann::json::parse(json_bytes.begin(), json_bytes.end());
     out.image_size_ = ds.at("size").get<int64_t>();
+    if (split == "synthetic" && !ds.at("shards").contains("synthetic"))
+      throw InvalidInput(json_path.string() +
+                         " lists no synthetic pairs: build the dataset with 'avatar-studio dataset build --synthetic N'");
     shard_rel = ds.at("shards").at(split).get<std::string>();
     if (!ds.at("labels").is_array()) throw InvalidInput("labels is not a list");
   } catch (const nlohmann::json::exception& e) {
@@ -110,6 +115,14 @@ TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split
   return out;
 }
 
+bool TrainDataset::HasSynthetic(const std::string& dir) {
+  std::ifstream in(fs::path(dir) / "dataset.json", std::ios::binary);
+  if (!in) return false;
+  const nlohmann::json ds = nlohmann::json::parse(in, nullptr, false);
+  return !ds.is_discarded() && ds.is_object() && ds.contains("shards") && ds["shards"].is_object() &&
+         ds["shards"].contains("synthetic");
+}
+
 int64_t TrainDataset::CountKind(PairKind kind) const {
   return pair_kind_.eq(static_cast<int64_t>(kind)).sum().item<int64_t>();
 }
@@ -151,18 +164,49 @@ TrainSample TrainDataset::Get(int64_t index) const {
 
 void LoaderOptions::Validate() const {
   if (batch_size < 1 || batch_size > 4096) throw InvalidOptions("batch size must be in 1..4096");
+  if (!(synthetic_fraction >= 0.0 && synthetic_fraction <= 1.0))
+    throw InvalidOptions("the synthetic fraction must be in [0,1]");
 }
 
 DataLoader::DataLoader(const TrainDataset& dataset, const LoaderOptions& options)
-    : dataset_(dataset), options_(options) {
+    : DataLoader(dataset, nullptr, options) {}
+
+DataLoader::DataLoader(const TrainDataset& dataset, const TrainDataset* synthetic, const LoaderOptions& options)
+    : dataset_(dataset), synthetic_(synthetic), options_(options) {
   options_.Validate();
-  if (dataset.size() == 0) throw InvalidInput("the " + dataset.split() + " split of the dataset has no pairs");
+  if (options_.synthetic_fraction > 0.0 && (synthetic_ == nullptr || synthetic_->size() == 0))
+    throw InvalidOptions("a synthetic fraction > 0 needs synthetic pairs: build the dataset with --synthetic N");
+  if (options_.synthetic_fraction > 0.0 && synthetic_->image_size() != dataset.image_size())
+    throw InvalidInput("the synthetic pairs are " + std::to_string(synthetic_->image_size()) + " px, the dataset " +
+                       std::to_string(dataset.image_size()) + " px");
+  if (options_.synthetic_fraction == 0.0) synthetic_ = nullptr;
+  if (dataset.size() == 0 && options_.synthetic_fraction < 1.0)
+    throw InvalidInput("the " + dataset.split() + " split of the dataset has no pairs");
   StartEpoch(0);
 }
 
 void DataLoader::StartEpoch(int64_t epoch) {
-  order_.resize(static_cast<size_t>(dataset_.size()));
+  const int64_t real = options_.synthetic_fraction < 1.0 ? dataset_.size() : 0;
+  order_.resize(static_cast<size_t>(real));
   std::iota(order_.begin(), order_.end(), 0);
+  if (synthetic_ != nullptr) {
+    // The epoch's synthetic pairs: successive seeded permutations of the synthetic split, the
+    // first continuing where the previous epoch stopped (the count per epoch is fixed).
+    const int64_t m = synthetic_->size();
+    const double f = options_.synthetic_fraction;
+    const int64_t per_epoch =
+        f >= 1.0 ? m : std::max<int64_t>(1, static_cast<int64_t>(std::llround(f / (1.0 - f) * real)));
+    int64_t first = epoch * per_epoch;
+    while (static_cast<int64_t>(order_.size()) < real + per_epoch) {
+      const int64_t round = first / m;
+      std::vector<int64_t> perm(static_cast<size_t>(m));
+      std::iota(perm.begin(), perm.end(), 0);
+      std::mt19937_64 prng(options_.seed * 7919ULL + 0x5EEDULL + static_cast<uint64_t>(round));
+      std::shuffle(perm.begin(), perm.end(), prng);
+      for (int64_t j = first % m; j < m && static_cast<int64_t>(order_.size()) < real + per_epoch; ++j, ++first)
+        order_.push_back(dataset_.size() + perm[static_cast<size_t>(j)]);
+    }
+  }
   if (options_.shuffle) {
     std::mt19937_64 rng(options_.seed * 1000003ULL + static_cast<uint64_t>(epoch));
     std::shuffle(order_.begin(), order_.end(), rng);
@@ -171,7 +215,7 @@ void DataLoader::StartEpoch(int64_t epoch) {
 }
 
 int64_t DataLoader::BatchesPerEpoch() const {
-  const int64_t n = dataset_.size();
+  const int64_t n = static_cast<int64_t>(order_.size());
   return options_.drop_last ? n / options_.batch_size : (n + options_.batch_size - 1) / options_.batch_size;
 }
 
@@ -185,7 +229,10 @@ bool DataLoader::Next(TrainBatch* batch) {
   }
   std::vector<TrainSample> samples;
   samples.reserve(take);
-  for (size_t i = 0; i < take; ++i) samples.push_back(dataset_.Get(order_[position_ + i]));
+  for (size_t i = 0; i < take; ++i) {
+    const int64_t k = order_[position_ + i];
+    samples.push_back(k < dataset_.size() ? dataset_.Get(k) : synthetic_->Get(k - dataset_.size()));
+  }
   position_ += take;
   *batch = Collate(samples);
   return true;

@@ -186,21 +186,6 @@ TEST(MorphablePreview, TurntablePngSequenceHasVaryingAlphaAtTheHeadsEdge) {
   std::filesystem::remove_all(dir);
 }
 
-TEST(ControlsFromCoefficients, RecoversAMixOfControls) {
-  // Twelve expression components: the ten synthetic controls are independent directions.
-  static const morphable::MorphableModel m = mt::SyntheticModel(mt::InstalledTopology(), 2, 12);
-  const std::map<std::string, float> truth = {{"jawOpen", 0.6f}, {"browRaise", 0.3f}, {"blinkLeft", 1.0f}};
-  const auto got = ControlsFromCoefficients(m, m.ExpressionFromControls(truth));
-  ASSERT_EQ(got.size(), truth.size());
-  for (const auto& [name, v] : truth) EXPECT_NEAR(got.at(name), v, 1e-4) << name;
-  // Out-of-range mixes are clamped into [0,1].
-  const auto clamped = ControlsFromCoefficients(m, m.ExpressionFromControls({{"smile", 3.0f}, {"frown", -1.0f}}));
-  EXPECT_FLOAT_EQ(clamped.at("smile"), 1.0f);
-  EXPECT_EQ(clamped.count("frown"), 0u);
-  EXPECT_TRUE(ControlsFromCoefficients(m, m.ZeroBeta()).empty());
-  EXPECT_THROW(ControlsFromCoefficients(m, {1.0f}), InvalidInput);
-}
-
 TEST(MorphableFrameAnalyzer, MeasuresPoseAndExpressionOrReportsNoFace) {
   const cv::Size size(320, 320);  // Square: ProjectLandmarks' label intrinsics assume it.
   bool have_face = true;

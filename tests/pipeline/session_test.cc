@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cmath>
 #include <fstream>
 #include <thread>
 
@@ -331,22 +333,41 @@ TEST(Session, CancellationStopsReconstructAndAnimate) {
 }
 
 TEST(Session, ConcurrentAnimateMatchesSerial) {
-  Session session(TinyOptions());
+  // A cache of two expressions for three in use: the threads evict each other's entries.
+  SessionOptions options = TinyOptions();
+  options.expression_cache = 2;
+  Session session(options);
   const Avatar avatar = MakeAvatar(session);
   std::vector<View> views;
   for (int i = 0; i < 6; ++i) views.push_back(View{-40.0 + 15 * i, 5.0 * (i % 3)});
-  // Every other view also changes the expression, so the threads share and refill the cache.
-  // The tiny random network's colours barely vary (8-bit frames can be equal), so the float
-  // opacity and depth maps are compared too.
-  auto expression = [](size_t i) { return Expression{{{"jawOpen", static_cast<float>(i % 2)}}}; };
+  // Thread t renders frames t, t+2, t+4; the schedule gives every thread a new expression on
+  // every frame, and the two threads different expressions at the same time (0, 0.5, 1 against
+  // 0.5, 1, 0). The tiny random network's colours barely vary (8-bit frames can be equal), so
+  // the float opacity and depth maps are compared too.
+  auto expression = [](size_t i) {
+    return Expression{{{"jawOpen", 0.5f * static_cast<float>((i / 2 + i % 2) % 3)}}};
+  };
+  for (size_t i = 0; i + 2 < views.size(); ++i) {
+    ASSERT_FALSE(expression(i) == expression(i + 2)) << "thread " << i % 2 << " must change its expression";
+  }
+  for (size_t step = 0; 2 * step + 1 < views.size(); ++step) {
+    ASSERT_FALSE(expression(2 * step) == expression(2 * step + 1)) << "the threads must differ at step " << step;
+  }
   auto same = [](const Frame& a, const Frame& b) {
     return SameMat(a.bgr, b.bgr) && SameMat(a.opacity, b.opacity) && SameMat(a.depth, b.depth);
   };
   std::vector<Frame> serial;
   for (size_t i = 0; i < views.size(); ++i)
     serial.push_back(session.Animate(avatar, expression(i), views[i], Preset::kStandard));
-  // The expression must change the frame, or the comparison below would not test it.
-  ASSERT_FALSE(same(serial[0], session.Animate(avatar, expression(1), views[0], Preset::kStandard)));
+  // Every expression must change the frame, or the comparison below would not test it.
+  for (size_t a = 0; a < 3; ++a) {
+    for (size_t b = a + 1; b < 3; ++b) {
+      const Frame fa = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * a}}}, views[0], Preset::kStandard);
+      const Frame fb = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * b}}}, views[0], Preset::kStandard);
+      ASSERT_FALSE(same(fa, fb)) << "jawOpen " << 0.5 * a << " and " << 0.5 * b << " render the same";
+    }
+  }
+  session.ResetCounters();
   std::vector<Frame> parallel(views.size());
   std::vector<std::thread> threads;
   for (int t = 0; t < 2; ++t) {
@@ -358,6 +379,31 @@ TEST(Session, ConcurrentAnimateMatchesSerial) {
   }
   for (auto& th : threads) th.join();
   for (size_t i = 0; i < views.size(); ++i) EXPECT_TRUE(same(serial[i], parallel[i])) << i;
+  EXPECT_EQ(session.Counters().renders, static_cast<int64_t>(views.size()));
+  // With two cache slots for three expressions, some expression planes had to be recomputed.
+  EXPECT_GE(session.Counters().expression_encoder, 1);
+}
+
+TEST(Session, AnimateAtACameraLabel) {
+  Session session(TinyOptions());
+  const Avatar avatar = MakeAvatar(session);
+  // The orbit view and the same camera as a label are one render.
+  std::array<float, 25> front{};
+  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
+  for (int i = 0; i < 25; ++i) front[i] = label[i].item<float>();
+  const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, View{}, Preset::kStandard);
+  const Frame b = session.Animate(avatar, {{{"smile", 0.5f}}}, front, Preset::kStandard);
+  EXPECT_TRUE(SameMat(a.bgr, b.bgr));
+  EXPECT_TRUE(SameMat(a.opacity, b.opacity));
+  EXPECT_TRUE(SameMat(a.depth, b.depth));
+  const Frame c = session.Animate(avatar, {{{"smile", 0.5f}}}, View{25}, Preset::kStandard);
+  EXPECT_FALSE(SameMat(a.opacity, c.opacity));
+  std::array<float, 25> bad = front;
+  bad[0] = 2.0f;  // not a rotation
+  EXPECT_THROW(session.Animate(avatar, {}, bad, Preset::kPreview), InvalidInput);
+  bad = front;
+  bad[5] = std::nanf("");
+  EXPECT_THROW(session.Animate(avatar, {}, bad, Preset::kPreview), InvalidInput);
 }
 
 TEST(Expression, KeyIsCanonical) {
@@ -366,6 +412,21 @@ TEST(Expression, KeyIsCanonical) {
   EXPECT_EQ(a.Key(), b.Key());
   EXPECT_EQ(a.Key(), "jawOpen=0.25,smile=0.5");
   EXPECT_EQ(Expression{}.Key(), "");
+  // Coefficients and the absolute flag are part of the expression, so part of the key.
+  Expression c = a;
+  c.coefficients = {0.1f, -2.0f, 0.0f};
+  Expression d = c;
+  d.coefficients_absolute = true;
+  Expression e = c;
+  e.coefficients[0] = std::nextafter(0.1f, 1.0f);  // one float step: a different expression
+  EXPECT_EQ(c.Key(), "jawOpen=0.25,smile=0.5|c=0.100000001,-2,0");
+  EXPECT_EQ(d.Key(), c.Key() + "|absolute");
+  EXPECT_NE(e.Key(), c.Key());
+  Expression only_absolute;
+  only_absolute.coefficients_absolute = true;
+  EXPECT_EQ(only_absolute.Key(), "|absolute");
+  EXPECT_FALSE(c == d);
+  EXPECT_TRUE(c == Expression(c));
 }
 
 }  // namespace

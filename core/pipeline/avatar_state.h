@@ -1,0 +1,35 @@
+#pragma once
+// The state behind an Avatar (session.h): the cached per-source network planes and what the
+// session needs to animate them. Internal to core/pipeline (LibTorch types); shared by the
+// session (session.cc), the avatar file format (avatar_file.cc) and SessionAccess.
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+#include <torch/torch.h>
+
+#include "core/model/goha_model.h"
+#include "core/pipeline/session.h"
+
+namespace avatar {
+
+struct AvatarState {
+  ModelConfig config;
+  std::string model_id;
+  uint64_t id = 0;                 // unique within the process (cache key)
+  torch::Tensor canonical;         // T_c [1,3,C,P,P]
+  torch::Tensor appearance;        // T_p [1,3,C,P,P]
+  torch::Tensor base;              // T_c + T_p
+  std::array<float, 25> camera{};  // C_s
+  cv::Mat source;                  // [512,512] CV_8UC3 aligned portrait
+  std::shared_ptr<const ExpressionImageSource> expressions;
+  std::string refinement;          // JSON summary of the refinement of these planes ("" = one-shot)
+};
+
+// A fresh process-wide avatar id (for AvatarState::id).
+uint64_t NextAvatarId();
+
+}  // namespace avatar
