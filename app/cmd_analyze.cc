@@ -151,6 +151,7 @@ int AnalyzeImage(const AnalyzeOptions& o, RunContext& ctx) {
                 {"embedding_size", portrait.embedding.size()},
                 {"embedding_norm", std::sqrt(norm)},
                 {"embedding", portrait.embedding},
+                {"warnings", portrait.warnings},
                 {"timings_ms", timings},
                 {"peak_rss_mb", PeakRssMb()}};
     std::cout << out.dump() << "\n";
@@ -160,6 +161,7 @@ int AnalyzeImage(const AnalyzeOptions& o, RunContext& ctx) {
               << " degrees).\n";
     if (!o.out_dir.empty()) std::cout << "Wrote crop, matte, masks and overlay to '" << o.out_dir << "'.\n";
   }
+  for (const auto& w : portrait.warnings) std::cerr << "analyze: warning: '" << o.input << "': " << w << "\n";
   return kExitOk;
 }
 

@@ -202,6 +202,7 @@ int RunBuildMorphableImpl(const BuildMorphableCommandOptions& o, RunContext& ctx
   fa.data_dir = o.common.data_dir;
   fa.matte = false;
   fa.embedding = false;
+  fa.min_face_px = 48;  // the threshold the shipped basis was built with (the interactive default is 24)
   const face::FaceAnalyzer analyzer(fa);
   std::vector<morphable::BuildSource> sources;
   const auto clips = Split(o.clips);

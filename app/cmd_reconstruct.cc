@@ -31,14 +31,22 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
               << so.seed << "); the avatar will look like noise.\n";
   }
   const cv::Mat image = LoadImageBgr(options.input);
+  // Face-analysis refusals (no face, too small, turned too far) name the photo.
+  auto analyse = [&](auto&& run) {
+    try {
+      return run();
+    } catch (const InvalidInput& e) {
+      throw InvalidInput("'" + options.input + "': " + e.what());
+    }
+  };
   Avatar avatar;
   if (!options.refine.Enabled()) {
-    avatar = session.Reconstruct(image, ctx);
+    avatar = analyse([&] { return session.Reconstruct(image, ctx); });
   } else {
     SourceAnalysis analysis;
     {
       RunContext::ProgressRange range(ctx, 0.0, 0.4);
-      analysis = AnalyseSource(image, so.data_dir, ctx);
+      analysis = analyse([&] { return AnalyseSource(image, so.data_dir, ctx); });
     }
     {
       RunContext::ProgressRange range(ctx, 0.4, 0.5);

@@ -133,7 +133,11 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
     if (title == kReconstructTitle) {
       setFrameSource(built_);
       built_.reset();
-      status_label_->setText(tr("Reconstructed %1").arg(QFileInfo(portrait_path_).fileName()));
+      QString done = tr("Reconstructed %1").arg(QFileInfo(portrait_path_).fileName());
+      if (source_) {
+        for (const std::string& w : source_->Warnings()) done += tr(". Warning: %1").arg(QString::fromStdString(w));
+      }
+      status_label_->setText(done);
       emit reconstructionFinished();
     } else if (title == kExportTitle) {
       status_label_->setText(tr("Exported %1 frames to %2").arg(export_frames_.load()).arg(export_output_));
@@ -402,7 +406,9 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
   if (source_) {
     expression_panel_->setSupported(source_->ExpressionControls());
     viewport_->setLabel(QString::fromStdString(source_->Label()));
-    source_panel_->setStatus(QString::fromStdString(source_->Label()));
+    QString status = QString::fromStdString(source_->Label());
+    for (const std::string& w : source_->Warnings()) status += tr("\nWarning: %1").arg(QString::fromStdString(w));
+    source_panel_->setStatus(status);
     if (!portrait_.empty()) source_panel_->setPortrait(ToQImage(portrait_), source_->Overlay());
   }
   export_action_->setEnabled(source_ != nullptr);

@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <numeric>
+#include <sstream>
 
 #include <opencv2/imgproc.hpp>
 
@@ -26,6 +28,10 @@ constexpr int kMeshInput = 192;
 constexpr int kMatteInput = 256;
 // Facemesh crops are the face box (or landmark box) enlarged by this factor.
 constexpr float kMeshRoiScale = 1.5f;
+// Images with a short side below this are not tiled: no face the full-range detector can find
+// (its finest anchor grid has a 16 px stride) fits across them, and tiling such a strip only
+// multiplies detector runs.
+constexpr int kMinTiledFacePx = 16;
 
 io::TfjsGraph LoadModel(const DataPaths& paths, const std::string& name, const std::string& purpose) {
   const auto file = paths.Require("models/" + name + ".json", purpose);
@@ -60,11 +66,15 @@ void FaceAnalyzerOptions::Validate() const {
   AVATAR_CHECK_OPTION(min_score > 0.0f && min_score < 1.0f) << "--min-score must be in (0,1), got " << min_score;
   AVATAR_CHECK_OPTION(nms_iou > 0.0f && nms_iou < 1.0f) << "--nms-iou must be in (0,1), got " << nms_iou;
   AVATAR_CHECK_OPTION(min_face_px >= 1) << "--min-face-px must be positive";
+  AVATAR_CHECK_OPTION(sharp_face_px >= min_face_px)
+      << "--sharp-face-px must be at least --min-face-px (" << min_face_px << "), got " << sharp_face_px;
   AVATAR_CHECK_OPTION(face_index >= -1) << "--face-index must be -1 (main face) or a face number >= 0";
   AVATAR_CHECK_OPTION(crop_size >= 64 && crop_size <= 4096) << "--crop-size must be in [64,4096]";
   AVATAR_CHECK_OPTION(crop_scale >= 0.5 && crop_scale <= 4.0) << "--crop-scale must be in [0.5,4]";
   AVATAR_CHECK_OPTION(mask_dilation_px >= 0 && mask_dilation_px <= 64) << "--mask-dilation-px must be in [0,64]";
   AVATAR_CHECK_OPTION(min_mesh_confidence >= 0.0f && min_mesh_confidence < 1.0f) << "--min-mesh-confidence must be in [0,1)";
+  AVATAR_CHECK_OPTION(min_face_presence >= 0.0f && min_face_presence <= min_mesh_confidence)
+      << "--min-face-presence must be in [0, --min-mesh-confidence], got " << min_face_presence;
   AVATAR_CHECK_OPTION(max_abs_yaw > 0.0f && max_abs_yaw <= 180.0f) << "--max-abs-yaw must be in (0,180]";
 }
 
@@ -111,25 +121,31 @@ std::vector<Detection> FaceAnalyzer::Detect(const cv::Mat& bgr) const {
   std::vector<Detection> all = models_->back->DetectRegion(bgr, whole, options_.min_score);
   for (const auto& d : models_->front->DetectRegion(bgr, whole, options_.min_score)) all.push_back(d);
   const int long_side = std::max(bgr.cols, bgr.rows);
-  if (options_.tile_large_images && long_side > 3 * models_->back->InputSize()) {
+  const int input = models_->back->InputSize();
+  const int short_side = std::min(bgr.cols, bgr.rows);
+  if (options_.tile_large_images && long_side > 3 * input && short_side >= kMinTiledFacePx) {
     // Square tiles of half the long side, overlapping by a quarter, so a face up to a quarter
-    // of the long side lies wholly inside some tile at twice the resolution.
-    const int tile = std::min(long_side / 2, std::min(bgr.cols, bgr.rows));
-    const int step = std::max(1, tile * 3 / 4);
-    auto starts = [&](int extent) {
+    // of the long side lies wholly inside some tile at twice the resolution. On a strip whose
+    // short side is below the detector input, a tile stretches to the input size along the
+    // strip (letterboxed, not upscaled), which bounds the tile count by long side / input.
+    const int tile = std::min(long_side / 2, short_side);
+    auto starts = [&](int extent, int side) {
+      const int step = std::max(1, side * 3 / 4);
       std::vector<int> s;
       for (int p = 0;; p += step) {
-        if (p + tile >= extent) {
-          s.push_back(std::max(0, extent - tile));
+        if (p + side >= extent) {
+          s.push_back(std::max(0, extent - side));
           break;
         }
         s.push_back(p);
       }
       return s;
     };
-    for (int y : starts(bgr.rows)) {
-      for (int x : starts(bgr.cols)) {
-        const cv::Rect region(x, y, std::min(tile, bgr.cols - x), std::min(tile, bgr.rows - y));
+    const int tile_w = std::min(bgr.cols, std::max(tile, input));
+    const int tile_h = std::min(bgr.rows, std::max(tile, input));
+    for (int y : starts(bgr.rows, tile_h)) {
+      for (int x : starts(bgr.cols, tile_w)) {
+        const cv::Rect region(x, y, std::min(tile_w, bgr.cols - x), std::min(tile_h, bgr.rows - y));
         for (const auto& d : models_->back->DetectRegion(bgr, region, options_.min_score)) {
           if (!Touches(d.box, region, bgr.size(), 2.0f)) all.push_back(d);
         }
@@ -257,23 +273,40 @@ AlignedPortrait FaceAnalyzer::AnalyzePortrait(const cv::Mat& bgr, RunContext& ct
   const float face_px = std::max(face.box.width, face.box.height);
   AVATAR_CHECK_INPUT(face_px >= options_.min_face_px)
       << "the face is too small (" << static_cast<int>(face_px) << " px, at least " << options_.min_face_px
-      << " px needed); use a larger or closer photo";
+      << " px needed, " << options_.sharp_face_px << " px for a sharp result); use a larger or closer photo";
   const Landmarks lm = Mesh(bgr, face);
   stage("mesh", 0.5);
+  // The landmark model's face-presence output tells a detector false positive (a drawing, a
+  // pattern) from a real face that is hard to read.
+  AVATAR_CHECK_INPUT(lm.confidence >= options_.min_face_presence)
+      << "no face found in the image (" << bgr.cols << "x" << bgr.rows << "): what the detector found ("
+      << static_cast<int>(face_px) << " px box) is not a human face to the landmark model (face presence "
+      << std::setprecision(2) << lm.confidence << "); use a photo with a clearly visible face";
   AVATAR_CHECK_INPUT(lm.confidence >= options_.min_mesh_confidence)
-      << "the face landmarks are unreliable (confidence " << lm.confidence
+      << "the face landmarks are unreliable (confidence " << std::setprecision(2) << lm.confidence
       << "); the face may be occluded, blurred or seen from the side: use a frontal photo";
   rep.image_landmarks = lm;
   AlignedPortrait out;
   out.pose = HeadPoseFromLandmarks(lm);
   AVATAR_CHECK_INPUT(std::abs(out.pose.yaw) <= options_.max_abs_yaw)
-      << "the face is turned too far to the side (yaw " << static_cast<int>(out.pose.yaw) << " degrees, at most "
-      << options_.max_abs_yaw << "); use a more frontal photo";
+      << "the face is turned too far to the side (yaw " << static_cast<int>(std::lround(out.pose.yaw))
+      << " degrees, at most " << options_.max_abs_yaw
+      << "): beyond that the face landmarks and the face-model fit drift (about 3.5x their frontal error, "
+         "measured on renders at known turns), so the avatar would be distorted; use a more frontal photo";
   stage("pose", 0.55);
   const int size = options_.crop_size;
   out.crop_from_image = CropTransform(lm, size, options_.crop_scale);
   out.image_unmatted = WarpImage(bgr, out.crop_from_image, size, size);
   out.landmarks = TransformLandmarks(lm, out.crop_from_image);
+  if (face_px < options_.sharp_face_px) {
+    const cv::Matx23d& m = out.crop_from_image;
+    const double upsampling = std::sqrt(std::abs(m(0, 0) * m(1, 1) - m(0, 1) * m(1, 0)));
+    std::ostringstream w;
+    w << std::fixed << std::setprecision(1) << "the face is small (" << static_cast<int>(face_px) << " px; "
+      << options_.sharp_face_px << " px or more gives a sharp result): its " << size << " px crop is upsampled "
+      << upsampling << "x, so the avatar will be soft; use a larger or closer photo for a sharp one";
+    out.warnings.push_back(w.str());
+  }
   stage("crop", 0.6);
   if (options_.matte) {
     out.matte = Matte(out.image_unmatted);

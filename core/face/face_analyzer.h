@@ -30,8 +30,12 @@ struct FaceAnalyzerOptions {
   float nms_iou = 0.3f;
   // Also run the full-range detector on overlapping tiles of large images (finds small faces).
   bool tile_large_images = true;
-  // AnalyzePortrait refuses faces whose box is smaller than this many pixels.
-  int min_face_px = 48;
+  // AnalyzePortrait refuses faces whose box side is below this many pixels (too few pixels for
+  // the landmarks to be trusted).
+  int min_face_px = 24;
+  // Faces from min_face_px up to this box side are accepted with a warning: their crop is
+  // upsampled, so the avatar comes out soft.
+  int sharp_face_px = 48;
   // Which face AnalyzePortrait uses: -1 = the main face (largest and most central), k = the
   // k-th face of Detect() (which lists the main face first).
   int face_index = -1;
@@ -47,8 +51,14 @@ struct FaceAnalyzerOptions {
   bool embedding = true;
   // Landmarks whose face-presence confidence is below this are refused.
   float min_mesh_confidence = 0.5f;
-  // Faces turned further than this (|yaw| degrees) are refused by AnalyzePortrait.
-  float max_abs_yaw = 40.0f;
+  // Below this face-presence confidence the detection is not a face at all, and AnalyzePortrait
+  // says "no face found" (detector false positives and a drawn smiley measured <= 0.16, real
+  // faces of the packaged photos >= 0.61; docs/DEVIATIONS.md).
+  float min_face_presence = 0.25f;
+  // Faces turned further than this (|yaw| degrees, as measured from the landmarks) are refused by
+  // AnalyzePortrait: on renders at known yaw, 35 measured is about 50 degrees of true turn,
+  // where the landmarks' error has grown to 3.5x the frontal one (docs/DEVIATIONS.md).
+  float max_abs_yaw = 35.0f;
 
   template <typename V>
   void Visit(V&& v) {
@@ -56,6 +66,7 @@ struct FaceAnalyzerOptions {
     v("nms_iou", nms_iou, "Overlap above which detections are merged");
     v("tile_large_images", tile_large_images, "Also detect on overlapping tiles of large images");
     v("min_face_px", min_face_px, "Smallest face (box side, pixels) accepted for a portrait");
+    v("sharp_face_px", sharp_face_px, "Smaller faces are accepted with a warning that the result will be soft");
     v("face_index", face_index, "Face to analyse: -1 = main face, k = k-th detected face");
     v("crop_size", crop_size, "Side of the aligned crop in pixels");
     v("crop_scale", crop_scale, "Zoom-out of the crop template (1 = FFHQ framing)");
@@ -63,6 +74,7 @@ struct FaceAnalyzerOptions {
     v("matte", matte, "Compute the person matte");
     v("embedding", embedding, "Compute the identity embedding");
     v("min_mesh_confidence", min_mesh_confidence, "Refuse landmarks below this confidence");
+    v("min_face_presence", min_face_presence, "Below this landmark confidence the detection is not a face");
     v("max_abs_yaw", max_abs_yaw, "Refuse faces turned further than this (degrees)");
   }
   void Validate() const;  // throws InvalidOptions
@@ -103,8 +115,9 @@ class FaceAnalyzer {
   Landmarks MeshFromLandmarks(const cv::Mat& bgr, const Landmarks& previous) const;
 
   // The main (or options.face_index-th) face -> aligned crop, matte, masks, landmarks in crop
-  // pixels, pose, embedding. Throws InvalidInput (no face, tiny face, unreliable landmarks,
-  // profile view, bad face_index), Cancelled through ctx.
+  // pixels, pose, embedding; a small (soft) face adds a line to AlignedPortrait::warnings.
+  // Throws InvalidInput (no face, tiny face, unreliable landmarks, profile view, bad
+  // face_index), Cancelled through ctx.
   AlignedPortrait AnalyzePortrait(const cv::Mat& bgr, RunContext& ctx, PortraitReport* report = nullptr) const;
 
   // Person matte of a BGR8 image: CV_32FC1 in [0,1], same size.

@@ -3,6 +3,7 @@
 // (core/morphable) and the pipeline. No torch types: every consumer can use these.
 
 #include <array>
+#include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -45,6 +46,7 @@ struct AlignedPortrait {
   HeadPose pose;
   cv::Matx23d crop_from_image = cv::Matx23d::eye();  // Similarity transform: original pixels -> crop pixels.
   std::vector<float> embedding;                        // Identity embedding (512 (fr_feature), L2-normalised); empty if not computed.
+  std::vector<std::string> warnings;                   // What the user should know about this portrait (e.g. a small face: soft result); one sentence each.
 };
 
 }  // namespace avatar::face

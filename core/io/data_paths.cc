@@ -2,6 +2,7 @@
 
 #include <cstdlib>
 
+#include "core/io/resources.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -26,6 +27,16 @@ DataPaths DataPaths::Resolve(const std::string& option) {
     }
     paths.root_ = cache / "avatar-studio";
     paths.source_ = "default cache";
+    // An installed package carries the data under <prefix>/share/avatar-studio; it is used when
+    // the user's cache holds no data (a cache filled by scripts/setup still wins).
+    std::error_code ec;
+    if (!fs::exists(paths.root_ / "models", ec)) {
+      const fs::path installed = InstalledDataDir();
+      if (!installed.empty() && fs::exists(installed / "models", ec)) {
+        paths.root_ = installed;
+        paths.source_ = "installed package";
+      }
+    }
   }
   return paths;
 }
@@ -34,10 +45,15 @@ fs::path DataPaths::Require(const std::string& relative, const std::string& purp
   const fs::path full = root_ / relative;
   std::error_code ec;
   if (fs::exists(full, ec)) return full;
+  if (source_ == "installed package") {
+    throw MissingData("missing data file '" + full.string() + "' (" + purpose + ") in the installed data folder '" +
+                      root_.string() + "'. Reinstall the avatar-studio package (apt-get install --reinstall "
+                      "avatar-studio), or point --data-dir or AVATAR_DATA_DIR at a data folder that holds it.");
+  }
   throw MissingData("missing data file '" + full.string() + "' (" + purpose + "). The data folder '" +
                     root_.string() + "' comes from the " + source_ +
-                    ". Install the data with scripts/setup (as root, or with sudo), or point --data-dir or "
-                    "AVATAR_DATA_DIR at a folder that holds it.");
+                    ". Install the avatar-studio package, or fill the folder with the source tree's scripts/setup "
+                    "(as root, or with sudo), or point --data-dir or AVATAR_DATA_DIR at a folder that holds it.");
 }
 
 }  // namespace avatar

@@ -2,7 +2,9 @@
 // Finds the packaged data (face models, mesh topology, sample portraits and clips) that
 // scripts/setup installs. One resolver for the whole app: an explicit option wins, then
 // the AVATAR_DATA_DIR environment variable, then the default cache folder
-// ($XDG_CACHE_HOME/avatar-studio or ~/.cache/avatar-studio).
+// ($XDG_CACHE_HOME/avatar-studio or ~/.cache/avatar-studio) when it holds data, then the copy an
+// installed package carries (InstalledDataDir(), <prefix>/share/avatar-studio), then the default
+// cache again (so that the missing-data error names it).
 
 #include <filesystem>
 #include <string>
@@ -15,7 +17,7 @@ class DataPaths {
   static DataPaths Resolve(const std::string& option = {});
 
   const std::filesystem::path& Root() const { return root_; }
-  // Where the root came from: "option", "AVATAR_DATA_DIR" or "default cache".
+  // Where the root came from: "option", "AVATAR_DATA_DIR", "default cache" or "installed package".
   const std::string& Source() const { return source_; }
 
   // Returns Root()/relative if it exists; otherwise throws MissingData saying which file is

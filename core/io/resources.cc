@@ -10,11 +10,16 @@ std::vector<std::filesystem::path> ResourceCandidates(const std::string& relativ
     out.push_back(std::filesystem::path(env) / relative);
     return out;
   }
-  std::error_code ec;
-  const auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
-  if (!ec) out.push_back(exe.parent_path().parent_path() / "share" / "avatar-studio" / relative);
+  if (const auto installed = InstalledDataDir(); !installed.empty()) out.push_back(installed / relative);
   out.push_back(std::filesystem::path(AVATAR_SOURCE_DIR) / "resources" / relative);
   return out;
+}
+
+std::filesystem::path InstalledDataDir() {
+  std::error_code ec;
+  const auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (ec) return {};
+  return exe.parent_path().parent_path() / "share" / "avatar-studio";
 }
 
 std::filesystem::path ResourcePath(const std::string& relative) {

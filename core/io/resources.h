@@ -24,5 +24,9 @@ inline constexpr const char* kBundledModelFile = "models/goha-default.ckpt";
 std::filesystem::path ResourcePath(const std::string& relative);
 // Every place ResourcePath looks, in order (for error messages).
 std::vector<std::filesystem::path> ResourceCandidates(const std::string& relative);
+// <prefix>/share/avatar-studio of the running executable (the folder above its bin/), or an
+// empty path when /proc/self/exe cannot be read. An installed package keeps its data there too
+// (core/io/data_paths.h).
+std::filesystem::path InstalledDataDir();
 
 }  // namespace avatar

@@ -654,6 +654,10 @@ class Builder {
     face::FaceAnalyzerOptions fa;
     fa.data_dir = o_.data_dir;
     fa.face_index = face_index;
+    // The thresholds the training sets were built with (the interactive defaults are looser:
+    // 24 px faces, 35 degrees of yaw), so a rebuild gives the same set.
+    fa.min_face_px = 48;
+    fa.max_abs_yaw = 40.0f;
     return face::SharedFaceAnalyzer(fa);
   }
 

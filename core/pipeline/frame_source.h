@@ -11,6 +11,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -84,6 +85,14 @@ class FrameSource {
   // GUI thread holds the object (const, no hidden shared mutable state without a lock).
   // Throws InvalidOptions for sizes outside 16..4096, Cancelled through ctx.
   virtual RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const = 0;
+
+  // What the user should know about the result, found while building the source (e.g. a small
+  // face: the avatar will be soft); one sentence each, empty when all is well.
+  const std::vector<std::string>& Warnings() const { return warnings_; }
+  void SetWarnings(std::vector<std::string> warnings) { warnings_ = std::move(warnings); }
+
+ private:
+  std::vector<std::string> warnings_;
 };
 
 // Today's minimal source: the portrait itself, letterboxed like the viewport, fully opaque

@@ -6,6 +6,7 @@
 #include "core/io/data_paths.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/util/error.h"
+#include "core/util/logging.h"
 
 namespace avatar {
 namespace {
@@ -44,6 +45,10 @@ SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, Ru
     face::PortraitReport report;
     out.portrait = face::SharedFaceAnalyzer(options).AnalyzePortrait(bgr, ctx, &report);
     out.overlay = OverlayOf(report, out.portrait);
+  }
+  for (const auto& w : out.portrait.warnings) {
+    out.warnings.push_back(w);
+    AVATAR_LOG(kWarning) << w;
   }
   ctx.Report("fit morphable model", 0.8);
   out.model = &morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));

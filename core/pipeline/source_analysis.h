@@ -7,6 +7,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -25,6 +26,9 @@ struct SourceAnalysis {
   morphable::FitResult morphable_fit;              // fit to portrait.landmarks in the 512 crop
   morphable::Texture texture;                      // sampled from the unmatted crop
   SourceOverlay overlay;                           // detections and landmarks in portrait pixels
+  // What the user should be told about this portrait (one sentence each, e.g. a small face
+  // gives a soft avatar); AnalyseSource also logs each one as a warning.
+  std::vector<std::string> warnings;
 };
 
 // Analyses a BGR photo. `data_dir` as in SessionOptions. Throws InvalidInput (no face),

@@ -56,8 +56,10 @@ class TrackingAnalyzer : public FrameAnalyzer {
 };
 
 std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analysis, const std::string& label) {
-  return std::make_shared<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture,
-                                                  analysis.overlay, label);
+  auto source = std::make_shared<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture,
+                                                         analysis.overlay, label);
+  source->SetWarnings(analysis.warnings);
+  return source;
 }
 
 std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, const BackendOptions& options,
@@ -68,8 +70,10 @@ std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, 
     RunContext::ProgressRange range(ctx, 0.7, 1.0);
     avatar = session->ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
   }
-  return std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
-                                              analysis.overlay);
+  auto source = std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
+                                                     analysis.overlay);
+  source->SetWarnings(analysis.warnings);
+  return source;
 }
 
 }  // namespace

@@ -42,6 +42,8 @@ TEST(AnalyzeCli, PhotoReportAndFiles) {
   EXPECT_EQ(selected, 1);
   EXPECT_EQ(j["selected"], 0);
   EXPECT_EQ(j["crop"]["size"], 512);
+  ASSERT_TRUE(j["warnings"].is_array());
+  EXPECT_TRUE(j["warnings"].empty()) << "sample4's main face is large: " << j["warnings"].dump();
   EXPECT_EQ(j["crop"]["crop_from_image"].size(), 2u);
   EXPECT_NEAR(j["embedding_norm"].get<double>(), 1.0, 1e-3);
   EXPECT_EQ(j["embedding_model"], "fr_feature.onnx");

@@ -124,6 +124,17 @@ struct BadCase {
 
 cv::Mat Grace() { return testing::LoadSample("grace_hopper.jpg"); }
 
+// Grace Hopper shrunk onto a grey canvas so that her face box is about `face_px` (measured:
+// 36 gives a 44 px box, accepted with the soft-result warning; 16 gives 14 px, refused).
+cv::Mat GraceOnCanvas(double face_px) {
+  const auto faces = testing::Analyzer().Detect(Grace());
+  const double scale = face_px / std::max(faces.at(0).box.width, faces.at(0).box.height);
+  cv::Mat small, canvas(400, 400, CV_8UC3, cv::Scalar::all(120));
+  cv::resize(Grace(), small, cv::Size(), scale, scale, cv::INTER_AREA);
+  small.copyTo(canvas(cv::Rect(150, 150, small.cols, small.rows)));
+  return canvas;
+}
+
 const std::vector<BadCase>& Cases() {
   static const std::vector<BadCase> cases = {
       {"NoFace", "landscape.png",
@@ -136,13 +147,11 @@ const std::vector<BadCase>& Cases() {
       {"SeveralFacesPicksTheMainOne", "group.jpg",
        [](const fs::path& p) { fs::copy_file(testing::Sample("sample1.jpg"), p); }, Expect::kOk, {}, 3},
       {"TinyFace", "tiny.png",
-       [](const fs::path& p) {
-         cv::Mat small, canvas(400, 400, CV_8UC3, cv::Scalar::all(120));
-         cv::resize(Grace(), small, cv::Size(), 0.12, 0.12, cv::INTER_AREA);
-         small.copyTo(canvas(cv::Rect(150, 150, small.cols, small.rows)));
-         cv::imwrite(p.string(), canvas);
-       },
-       Expect::kError, {"tiny.png"}},
+       [](const fs::path& p) { cv::imwrite(p.string(), GraceOnCanvas(16)); },
+       Expect::kError, {"tiny.png", "too small"}},
+      {"SmallFaceIsSoft", "small.png",
+       [](const fs::path& p) { cv::imwrite(p.string(), GraceOnCanvas(36)); },
+       Expect::kOk, {"warning", "small.png", "soft"}, 1},
       {"FaceCutByTheBorder", "cut.png",
        [](const fs::path& p) { cv::imwrite(p.string(), Grace()(cv::Rect(250, 60, 262, 540))); }, Expect::kOk, {}, -1},
       {"ProfileView", "profile.jpg",
@@ -251,8 +260,13 @@ TEST_P(BadInput, CleanOutcome) {
         // EXIF orientation applied: the face is upright again (small roll) in a portrait frame.
         EXPECT_GT(report["height"].get<int>(), report["width"].get<int>());
         EXPECT_LT(std::abs(report["pose"]["roll"].get<double>()), 15.0);
+      } else {
+        // Anything else is a warning the user must see on stderr (and in the report).
+        EXPECT_NE(r.err.find(m), std::string::npos) << c.name << ": '" << m << "' not in: " << r.err;
+        EXPECT_FALSE(report["warnings"].empty()) << c.name;
       }
     }
+    if (c.message.empty()) EXPECT_TRUE(report["warnings"].empty()) << c.name << ": " << report["warnings"].dump();
   } else {
     ASSERT_EQ(r.exit_code, 1) << c.name << ": expected a clean error, got success:\n" << r.out.substr(0, 300);
     EXPECT_TRUE(r.out.empty()) << c.name << ": no report on stdout after an error";

@@ -1,7 +1,9 @@
 // Face analysis on real photos: detection counts checked against hand-marked face centres,
 // the aligned portrait's invariants, identity, pose properties and hard cases.
 #include <cmath>
+#include <iomanip>
 #include <iostream>
+#include <limits>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -9,6 +11,7 @@
 #include "core/face/face_analyzer.h"
 #include "core/face/face_geometry.h"
 #include "core/face/image_tensor.h"
+#include "core/morphable/morphable.h"
 #include "core/util/error.h"
 #include "face/face_test_util.h"
 
@@ -239,6 +242,168 @@ TEST(Pose, RotatedImageChangesRollByTheAngle) {
   EXPECT_LT(err / kMeshPoints / iod, 0.05);
 }
 
+// The yaw limit of AnalyzePortrait, measured: the committed morphable face, textured from a real
+// frontal photo, is rendered turned by known yaws; detection, facemesh, the head pose and the
+// morphable fit run on each render and are compared with the truth (the model has facemesh's
+// topology, so vertex i is landmark i). Errors are in units of the frontal inter-ocular distance.
+struct YawProbe {
+  double yaw = 0.0;           // true turn, degrees (> 0: the face turns to the image's left)
+  bool detected = false;      // BlazeFace found the face
+  float confidence = 0.0f;    // facemesh face presence
+  double mesh_error = 0.0;    // mean 2D landmark error
+  double pose_yaw = 0.0;      // HeadPoseFromLandmarks yaw (what AnalyzePortrait checks)
+  double fit_yaw = 0.0;       // yaw of the fitted camera
+  double fit_error = 0.0;     // mean 2D error of the fitted mesh against the true vertices
+};
+
+class YawRenders {
+ public:
+  YawRenders() : model_(morphable::LoadDefaultModel(DataPaths::Resolve())) {
+    using namespace morphable;
+    RunContext ctx;
+    FaceAnalyzerOptions o;
+    o.embedding = false;
+    const AlignedPortrait portrait = FaceAnalyzer(o).AnalyzePortrait(LoadSample("franck_02888.jpg"), ctx);
+    const FitResult fit = Fit(model_, portrait.landmarks, portrait.image.size());
+    texture_ = SampleTexture(model_, fit, portrait.image_unmatted);
+    Beta neutral = model_.ZeroBeta();
+    world_ = WorldVertices(model_, fit, &neutral);
+    for (const auto& p : world_) centre_ += cv::Vec3d(p.x, p.y, p.z);
+    centre_ *= 1.0 / static_cast<double>(world_.size());
+    iod_ = cv::norm(RegionCentre(Truth(0.0), mesh_index::RightEye()) - RegionCentre(Truth(0.0), mesh_index::LeftEye()));
+  }
+
+  YawProbe Probe(double yaw) const {
+    using namespace morphable;
+    YawProbe out;
+    out.yaw = yaw;
+    const std::vector<cv::Point3f> turned = Turned(yaw);
+    RenderOptions ro;
+    ro.supersample = 2;
+    ro.background = {0.45f, 0.45f, 0.45f};
+    const RenderResult rr = RenderMesh(turned, model_.topology(), texture_, FrontalLabel(), kSize, ro);
+    cv::Mat img;
+    rr.image.convertTo(img, CV_8UC3, 255.0);
+    const Landmarks truth = Truth(yaw);
+    const auto faces = Analyzer().Detect(img);
+    out.detected = !faces.empty();
+    if (!out.detected) return out;
+    const Landmarks lm = Analyzer().Mesh(img, faces[0]);
+    out.confidence = lm.confidence;
+    out.mesh_error = MeanError(lm, truth);
+    out.pose_yaw = HeadPoseFromLandmarks(lm).yaw;
+    // The fit as AnalyseSource runs it: on the landmarks in the aligned 512 crop.
+    const cv::Matx23d crop = CropTransform(lm, 512);
+    const FitResult fit = Fit(model_, TransformLandmarks(lm, crop), cv::Size(512, 512));
+    out.fit_yaw = YawOf(fit.rotation);
+    const PinholeCamera cam = PinholeCamera::FromLabel(fit.camera);
+    const cv::Matx23d back = InvertAffine(crop);
+    Landmarks fitted = truth;
+    const auto fitted_world = WorldVertices(model_, fit);
+    for (size_t i = 0; i < fitted_world.size(); ++i) {
+      const auto& p = fitted_world[i];
+      const cv::Point2d q = cam.ToPixel(cam.ToCamera(cv::Vec3d(p.x, p.y, p.z)), cv::Size(512, 512));
+      const cv::Point2f r = ApplyAffine(back, cv::Point2f(static_cast<float>(q.x), static_cast<float>(q.y)));
+      fitted.points[i] = cv::Point3f(r.x, r.y, 0.0f);
+    }
+    out.fit_error = MeanError(fitted, truth);
+    return out;
+  }
+
+ private:
+  static constexpr int kSide = 512;
+  const cv::Size kSize{kSide, kSide};
+
+  // The head turned about the camera's vertical axis through its centre, in world coordinates.
+  std::vector<cv::Point3f> Turned(double yaw) const {
+    const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(morphable::FrontalLabel());
+    const double t = yaw * CV_PI / 180;
+    // Rotation about the camera's y axis (down): +t moves the nose (camera direction -z) to the
+    // image's left (-x).
+    const cv::Matx33d r(std::cos(t), 0, std::sin(t), 0, 1, 0, -std::sin(t), 0, std::cos(t));
+    const cv::Matx33d rw = cam.world_to_cam.t() * r * cam.world_to_cam;
+    std::vector<cv::Point3f> out;
+    for (const auto& p : world_) {
+      const cv::Vec3d q = rw * (cv::Vec3d(p.x, p.y, p.z) - centre_) + centre_;
+      out.emplace_back(static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2]));
+    }
+    return out;
+  }
+
+  Landmarks Truth(double yaw) const {
+    const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(morphable::FrontalLabel());
+    Landmarks lm;
+    lm.confidence = 1.0f;
+    for (const auto& p : Turned(yaw)) {
+      const cv::Point2d q = cam.ToPixel(cam.ToCamera(cv::Vec3d(p.x, p.y, p.z)), kSize);
+      lm.points.emplace_back(static_cast<float>(q.x), static_cast<float>(q.y), 0.0f);
+    }
+    return lm;
+  }
+
+  // Yaw of a world -> camera rotation: the angle of the face's forward direction (the one that
+  // points at the frontal camera) about the camera's vertical axis; > 0 turns it image-left.
+  static double YawOf(const cv::Matx33d& world_to_cam) {
+    const morphable::PinholeCamera front = morphable::PinholeCamera::FromLabel(morphable::FrontalLabel());
+    const cv::Vec3d forward = front.world_to_cam.t() * cv::Vec3d(0, 0, -1);
+    const cv::Vec3d v = world_to_cam * forward;
+    return std::atan2(-v[0], -v[2]) * 180.0 / CV_PI;
+  }
+
+  double MeanError(const Landmarks& a, const Landmarks& b) const {
+    double sum = 0.0;
+    for (int i = 0; i < kMeshPoints; ++i) {
+      sum += std::hypot(a.points[i].x - b.points[i].x, a.points[i].y - b.points[i].y);
+    }
+    return sum / kMeshPoints / iod_;
+  }
+
+  const morphable::MorphableModel& model_;
+  morphable::Texture texture_;
+  std::vector<cv::Point3f> world_;
+  cv::Vec3d centre_{0, 0, 0};
+  double iod_ = 1.0;
+};
+
+TEST(YawLimit, MeshAndFitHoldUpToTheRefusalLimit) {
+  const YawRenders renders;
+  const double limit = FaceAnalyzerOptions().max_abs_yaw;
+  std::vector<YawProbe> probes;
+  for (double yaw = -90.0; yaw <= 90.0; yaw += 10.0) probes.push_back(renders.Probe(yaw));
+  std::cout << "[yaw] true | found conf | mesh err (IOD) | pose yaw | fit yaw | fit err (IOD)\n";
+  for (const auto& p : probes) {
+    std::cout << std::fixed << std::setprecision(3) << "[yaw] " << std::setw(5) << p.yaw << " | " << p.detected
+              << " " << p.confidence << " | " << p.mesh_error << " | " << std::setprecision(1) << p.pose_yaw << " | "
+              << p.fit_yaw << " | " << std::setprecision(3) << p.fit_error << "\n";
+  }
+  // Measured (commit of this test): mesh error 0.023 frontal, <= 0.061 up to 40 degrees, 0.08-0.09
+  // at 50, 0.13-0.15 at 60; the landmark yaw reads 30-31 at a true 40 and 34.5-35.4 at 50, and
+  // the fit follows the landmarks (fit error = mesh error +- 0.002). Past 60 the mesh folds
+  // back (the yaw reading falls again), which no yaw limit can catch on these face-only renders.
+  const YawProbe& frontal = probes[probes.size() / 2];
+  ASSERT_EQ(frontal.yaw, 0.0);
+  EXPECT_LT(frontal.mesh_error, 0.04);
+  for (const auto& p : probes) {
+    if (std::abs(p.yaw) > 60.0) continue;
+    ASSERT_TRUE(p.detected) << "yaw " << p.yaw;
+    const bool accepted = p.confidence >= FaceAnalyzerOptions().min_mesh_confidence && std::abs(p.pose_yaw) <= limit;
+    if (std::abs(p.yaw) <= 40.0) {
+      // Where the mesh holds, the face is accepted, and mesh and fit stay close to the truth.
+      EXPECT_TRUE(accepted) << "yaw " << p.yaw << " reads " << p.pose_yaw << ", refused by the limit " << limit;
+      EXPECT_LT(p.mesh_error, 0.08) << "yaw " << p.yaw;
+      EXPECT_LT(std::abs(p.fit_yaw - p.yaw), 12.0) << "yaw " << p.yaw;
+    }
+    if (accepted) {
+      // Whatever the limit lets through has at most 4.5x the frontal landmark error: raising the
+      // limit to let a 60-degree turn through (mesh error 0.13-0.15) fails here.
+      EXPECT_LT(p.mesh_error, 4.5 * frontal.mesh_error) << "yaw " << p.yaw << " accepted (reads " << p.pose_yaw << ")";
+      EXPECT_LT(p.fit_error, 4.5 * frontal.mesh_error) << "yaw " << p.yaw;
+      EXPECT_LT(std::abs(p.fit_yaw - p.yaw), 16.0) << "yaw " << p.yaw;
+    }
+  }
+  EXPECT_FALSE(std::abs(probes[probes.size() / 2 + 6].pose_yaw) <= limit) << "a 60-degree turn must be refused";
+}
+
 TEST(HardCases, NoFaceTinyAndDegenerateImages) {
   RunContext ctx;
   const cv::Mat black(480, 640, CV_8UC3, cv::Scalar::all(0));
@@ -253,33 +418,111 @@ TEST(HardCases, NoFaceTinyAndDegenerateImages) {
   cv::Mat noise(256, 256, CV_8UC3);
   cv::randu(noise, 0, 255);
   EXPECT_TRUE(Analyzer().Detect(noise).empty());
-  // A real face shrunk below the minimum size is refused with a message saying so.
-  cv::Mat small;
-  cv::resize(LoadSample("grace_hopper.jpg"), small, cv::Size(), 0.12, 0.12, cv::INTER_AREA);
-  cv::Mat canvas(300, 300, CV_8UC3, cv::Scalar::all(90));
-  small.copyTo(canvas(cv::Rect(100, 100, small.cols, small.rows)));
+}
+
+// Face size: below min_face_px refused, from there up to sharp_face_px accepted with one
+// warning that the upsampled crop makes the result soft, larger faces without a warning. The
+// thresholds are set around the measured box of one photo, so the rule itself is checked.
+TEST(FaceSize, SmallFacesWarnTinyFacesAreRefused) {
+  const cv::Mat image = LoadSample("grace_hopper.jpg");
+  const auto faces = Analyzer().Detect(image);
+  ASSERT_EQ(faces.size(), 1u);
+  const int side = static_cast<int>(std::max(faces[0].box.width, faces[0].box.height));
+  auto analyse = [&](int min_px, int sharp_px) {
+    FaceAnalyzerOptions o;
+    o.matte = false;
+    o.embedding = false;
+    o.min_face_px = min_px;
+    o.sharp_face_px = sharp_px;
+    RunContext ctx;
+    return SharedFaceAnalyzer(o).AnalyzePortrait(image, ctx);
+  };
+  EXPECT_TRUE(analyse(side / 2, side - 5).warnings.empty()) << "a face above sharp_face_px needs no warning";
+  const AlignedPortrait soft = analyse(side - 5, side + 5);
+  ASSERT_EQ(soft.warnings.size(), 1u);
+  EXPECT_NE(soft.warnings[0].find("soft"), std::string::npos) << soft.warnings[0];
+  EXPECT_NE(soft.warnings[0].find("upsampled"), std::string::npos) << soft.warnings[0];
+  EXPECT_NE(soft.warnings[0].find(std::to_string(side) + " px"), std::string::npos) << soft.warnings[0];
   try {
-    Analyzer().AnalyzePortrait(canvas, ctx);
-    ADD_FAILURE() << "tiny face accepted";
+    analyse(side + 5, side + 10);
+    ADD_FAILURE() << "a face below min_face_px was accepted";
   } catch (const InvalidInput& e) {
-    const std::string msg = e.what();
-    EXPECT_TRUE(msg.find("too small") != std::string::npos || msg.find("no face") != std::string::npos) << msg;
+    EXPECT_NE(std::string(e.what()).find("too small"), std::string::npos) << e.what();
+  }
+  FaceAnalyzerOptions bad;
+  bad.min_face_px = 40;
+  bad.sharp_face_px = 30;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
+// The defaults on real small faces: the photo shrunk until its face box is about 36 px is
+// analysed with the soft warning; shrunk to about 16 px it is refused as too small.
+TEST(FaceSize, DefaultThresholdsOnAShrunkPhoto) {
+  const cv::Mat image = LoadSample("grace_hopper.jpg");
+  const auto faces = Analyzer().Detect(image);
+  ASSERT_EQ(faces.size(), 1u);
+  const double side = std::max(faces[0].box.width, faces[0].box.height);
+  const FaceAnalyzerOptions defaults;
+  auto shrunk = [&](double target_px) {
+    cv::Mat small;
+    cv::resize(image, small, cv::Size(), target_px / side, target_px / side, cv::INTER_AREA);
+    cv::Mat canvas(300, 300, CV_8UC3, cv::Scalar::all(90));
+    small.copyTo(canvas(cv::Rect(100, 100, small.cols, small.rows)));
+    return canvas;
+  };
+  RunContext ctx;
+  PortraitReport report;
+  const AlignedPortrait soft = Analyzer().AnalyzePortrait(shrunk(36), ctx, &report);
+  const float got = std::max(report.faces[report.selected].box.width, report.faces[report.selected].box.height);
+  std::cout << "[size] shrunk to ~36 px: box " << got << " px, warning: "
+            << (soft.warnings.empty() ? std::string("none") : soft.warnings[0]) << "\n";
+  ASSERT_GE(got, defaults.min_face_px);
+  ASSERT_LT(got, defaults.sharp_face_px);
+  ASSERT_EQ(soft.warnings.size(), 1u);
+  EXPECT_NE(soft.warnings[0].find("soft"), std::string::npos);
+  try {
+    Analyzer().AnalyzePortrait(shrunk(16), ctx, &report);
+    ADD_FAILURE() << "a 16 px face was accepted";
+  } catch (const InvalidInput& e) {
+    std::cout << "[size] shrunk to ~16 px: " << e.what() << "\n";
+    EXPECT_NE(std::string(e.what()).find("too small"), std::string::npos) << e.what();
   }
 }
 
 TEST(HardCases, FaceCutByTheBorderGivesFiniteBlackFilledCrop) {
   const cv::Mat image = LoadSample("grace_hopper.jpg");
-  // Keep only the lower-right part: the face's left third is cut off.
+  // Keep only the lower-right part: the face's left third is cut off. Documented behaviour: the
+  // face is analysed (facemesh places the missing part), and the crop is black where it extends
+  // past the photo.
   const cv::Mat cut = image(cv::Rect(230, 60, 282, 540)).clone();
   RunContext ctx;
+  const AlignedPortrait p = Analyzer().AnalyzePortrait(cut, ctx);
+  for (const auto& q : p.landmarks.points) EXPECT_TRUE(std::isfinite(q.x) && std::isfinite(q.y));
+  EXPECT_EQ(p.image_unmatted.at<cv::Vec3b>(256, 0), cv::Vec3b(0, 0, 0));
+  // ... and only there: the crop's centre is the face, not fill.
+  const cv::Vec3b centre = p.image_unmatted.at<cv::Vec3b>(256, 256);
+  EXPECT_GT(centre[0] + centre[1] + centre[2], 60);
+  EXPECT_TRUE(p.warnings.empty());
+}
+
+// A photo without a human face whose drawing fools the detector (a smiley) is "no face found",
+// not "landmarks unreliable".
+TEST(HardCases, DrawnSmileyIsNoFace) {
+  cv::Mat smiley(400, 400, CV_8UC3, cv::Scalar::all(255));
+  cv::circle(smiley, {200, 200}, 150, cv::Scalar(0, 220, 255), cv::FILLED);
+  cv::circle(smiley, {150, 160}, 18, cv::Scalar::all(0), cv::FILLED);
+  cv::circle(smiley, {250, 160}, 18, cv::Scalar::all(0), cv::FILLED);
+  cv::ellipse(smiley, {200, 220}, {80, 60}, 0, 20, 160, cv::Scalar::all(0), 10);
+  const auto faces = Analyzer().Detect(smiley);
+  ASSERT_EQ(faces.size(), 1u) << "the detector fires on the smiley (measured score 0.66), so this checks the mesh";
+  RunContext ctx;
   try {
-    const AlignedPortrait p = Analyzer().AnalyzePortrait(cut, ctx);
-    for (const auto& q : p.landmarks.points) EXPECT_TRUE(std::isfinite(q.x) && std::isfinite(q.y));
-    // The crop extends past the photo: those pixels are black.
-    EXPECT_EQ(p.image_unmatted.at<cv::Vec3b>(256, 0), cv::Vec3b(0, 0, 0));
+    Analyzer().AnalyzePortrait(smiley, ctx);
+    ADD_FAILURE() << "a smiley was analysed as a face";
   } catch (const InvalidInput& e) {
-    // Documented alternative: refused with a reason.
-    EXPECT_FALSE(std::string(e.what()).empty());
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("no face found"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find("unreliable"), std::string::npos) << msg;
   }
 }
 

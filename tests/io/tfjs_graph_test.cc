@@ -2,6 +2,7 @@
 // against hand-computed values, and clean ModelLoad errors for broken model files.
 #include "core/io/tfjs_graph.h"
 
+#include <algorithm>
 #include <fstream>
 #include <iostream>
 
@@ -36,7 +37,7 @@ torch::Tensor ReadF32(const fs::path& file, const std::vector<int64_t>& shape) {
 json Manifest() {
   const fs::path m = GoldenDir() / "manifest.json";
   if (!fs::exists(m)) {
-    ADD_FAILURE() << "no goldens at " << m << ": run `ctest -L face` (fixture face/goldens runs "
+    ADD_FAILURE() << "no goldens at " << m << ": run `ctest -L io` (its fixture face/goldens runs "
                   << "scripts/goldens/make_goldens.sh; it needs node from scripts/setup)";
     return json();
   }
@@ -75,7 +76,10 @@ TEST_P(TfjsGolden, MatchesTensorFlowJs) {
     std::cout << "[golden] " << GetParam() << " " << names[i] << ": max abs error " << err << " (max |ref| " << scale
               << ")\n";
     RecordProperty(names[i] + "_max_abs_error", std::to_string(err));
-    EXPECT_LT(err, 1e-3) << GetParam() << " output " << names[i];
+    // 1e-3 absolute, or float32 rounding of outputs that reach the thousands (box regressors
+    // of up to ~1200 px): the sum order differs between TF.js and LibTorch and with the thread count.
+    const double tolerance = std::max(1e-3, 5e-6 * scale);
+    EXPECT_LT(err, tolerance) << GetParam() << " output " << names[i] << " (max |ref| " << scale << ")";
     worst = std::max(worst, err);
   }
   std::cout << "[golden] " << GetParam() << ": worst max abs error " << worst << "\n";

@@ -9,6 +9,7 @@
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
 #include "core/util/error.h"
+#include "model_test_util.h"
 
 namespace avatar {
 namespace {
@@ -44,17 +45,7 @@ TEST(Checkpoint, RoundTripIsBitExact) {
   EXPECT_EQ(loaded.info.step, 1234);
   EXPECT_EQ(loaded.info.data_provenance, "unit test");
   EXPECT_EQ(loaded.model->config(), model->config());
-  const auto a = model->named_parameters(true);
-  const auto b = loaded.model->named_parameters(true);
-  ASSERT_EQ(a.size(), b.size());
-  for (const auto& item : a) {
-    const torch::Tensor& other = b[item.key()];
-    EXPECT_TRUE(torch::equal(item.value(), other)) << item.key();
-    EXPECT_EQ(std::memcmp(item.value().data_ptr(), other.data_ptr(), item.value().nbytes()), 0) << item.key();
-  }
-  for (const auto& item : model->named_buffers(true)) {
-    EXPECT_TRUE(torch::equal(item.value(), loaded.model->named_buffers(true)[item.key()])) << item.key();
-  }
+  avatar::testing::ExpectBitIdenticalWeights(model, loaded.model);
   // Saving the loaded model again gives the identical file.
   SaveModelCheckpoint(dir.path() / "again.ckpt", const_cast<GohaModel&>(loaded.model), loaded.info);
   EXPECT_EQ(ReadAll(path), ReadAll(dir.path() / "again.ckpt"));

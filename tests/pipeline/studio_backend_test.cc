@@ -6,11 +6,14 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "common/temp_dir.h"
+#include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
 #include "core/pipeline/studio_backend.h"
@@ -86,6 +89,29 @@ TEST_F(StudioBackend, MorphablePreviewWhenChosenOrWhenNoModelLoads) {
   BackendOptions bad;
   bad.renderer = "mesh";
   EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
+// A portrait whose face is between min_face_px and sharp_face_px is reconstructed, and the
+// analysis warning (soft result) reaches the frame source, whichever renderer shows it.
+TEST_F(StudioBackend, SmallFaceWarningReachesTheFrameSource) {
+  RunContext ctx;
+  const face::FaceAnalyzerOptions defaults;
+  const auto faces = face::SharedFaceAnalyzer(defaults).Detect(*portrait_);
+  ASSERT_EQ(faces.size(), 1u);
+  const double side = std::max(faces[0].box.width, faces[0].box.height);
+  const double target = (defaults.min_face_px + defaults.sharp_face_px) / 2.0;
+  cv::Mat small;
+  cv::resize(*portrait_, small, cv::Size(), target / side, target / side, cv::INTER_AREA);
+  cv::Mat canvas(300, 300, CV_8UC3, cv::Scalar::all(90));
+  small.copyTo(canvas(cv::Rect(100, 100, small.cols, small.rows)));
+  BackendOptions morphable;
+  morphable.renderer = "morphable";
+  for (const BackendOptions& o : {morphable, BackendOptions{}}) {
+    const auto source = CreateFrameSource(canvas, o, ctx);
+    ASSERT_EQ(source->Warnings().size(), 1u) << o.renderer;
+    EXPECT_NE(source->Warnings()[0].find("soft"), std::string::npos) << source->Warnings()[0];
+  }
+  EXPECT_TRUE(CreateFrameSource(*portrait_, morphable, ctx)->Warnings().empty()) << "a large face needs no warning";
 }
 
 TEST_F(StudioBackend, NamedCheckpointMustLoad) {

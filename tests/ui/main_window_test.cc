@@ -1,5 +1,6 @@
 // Starts the real main window under Xvfb, opens the sample portrait through the drag and
 // drop path, grabs the window and checks the portrait's pixels are in the viewport.
+#include <QCheckBox>
 #include <QDropEvent>
 #include <QMimeData>
 #include <QScreen>
@@ -12,11 +13,13 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
 #include "core/pipeline/portrait_preview.h"
 #include "ui/image_convert.h"
 #include "ui/main_window.h"
+#include "ui/panels.h"
 #include "ui/studio.h"
 #include "ui/viewport.h"
 
@@ -107,6 +110,42 @@ class MainWindowTest : public QObject {
 
     QVERIFY(window.recentFiles().value(0).endsWith(QStringLiteral("grace_hopper.jpg")));
     QVERIFY(window.windowTitle().startsWith(QStringLiteral("grace_hopper.jpg")));
+  }
+
+  // A portrait whose face is small (between min_face_px and sharp_face_px) is reconstructed,
+  // and the analysis warning that the result will be soft is shown in the status bar.
+  void smallFaceWarningIsShownAfterReconstructing() {
+    const DataPaths data = DataPaths::Resolve();
+    const cv::Mat photo = LoadImageBgr(data.Require(DataPaths::kDefaultPortrait, "the sample portrait"));
+    const face::FaceAnalyzerOptions defaults;
+    const auto faces = face::SharedFaceAnalyzer(defaults).Detect(photo);
+    QCOMPARE(faces.size(), size_t{1});
+    const double side = std::max(faces[0].box.width, faces[0].box.height);
+    const double target = (defaults.min_face_px + defaults.sharp_face_px) / 2.0;
+    cv::Mat small;
+    cv::resize(photo, small, cv::Size(), target / side, target / side, cv::INTER_AREA);
+    cv::Mat canvas(300, 300, CV_8UC3, cv::Scalar::all(90));
+    small.copyTo(canvas(cv::Rect(100, 100, small.cols, small.rows)));
+    QTemporaryDir dir;
+    const QString path = dir.filePath(QStringLiteral("small_face.png"));
+    SaveImage(path.toStdString(), canvas);
+
+    MainWindow window;
+    window.setDialogsEnabled(false);
+    window.sourcePanel()->morphablePreviewBox()->setChecked(true);  // the fast renderer
+    window.show();
+    QVERIFY(QTest::qWaitForWindowExposed(&window));
+    QSignalSpy done(&window, &MainWindow::reconstructionFinished);
+    QSignalSpy failed(&window, &MainWindow::reconstructionFailed);
+    // (An earlier case switched Reconstruct on Open off in the settings: start it explicitly.)
+    QVERIFY(window.openPortrait(path, false));
+    QVERIFY(window.reconstruct());
+    QVERIFY2(done.wait(180000), qPrintable(failed.isEmpty() ? window.statusText() : failed.value(0).value(0).toString()));
+    QVERIFY(window.frameSource() != nullptr);
+    QCOMPARE(window.frameSource()->Warnings().size(), size_t{1});
+    const QString status = window.statusText();
+    QVERIFY2(status.contains(QStringLiteral("Warning:")) && status.contains(QStringLiteral("soft")), qPrintable(status));
+    window.sourcePanel()->morphablePreviewBox()->setChecked(false);
   }
 
   void badFileShowsAnErrorAndKeepsTheOldImage() {

@@ -2,8 +2,8 @@
 // moves renders a handful of frames, and the last frame shown is the last state requested.
 // Its driving video is the export's driver: given the same clip (missed faces included) the
 // preview and an export ask the source for the same camera and expression on every frame.
-// LibTorch (via the morphable model) first: Qt's `slots` macro breaks its headers.
-#include "morphable/morphable_test_util.h"
+// LibTorch (via the morphable model, in common/synthetic_studio.h) first: Qt's `slots` macro breaks its headers.
+#include "common/synthetic_studio.h"
 
 #include <QSettings>
 #include <QSignalSpy>
@@ -13,6 +13,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <filesystem>
 #include <mutex>
 #include <thread>
@@ -30,23 +31,62 @@
 namespace avatar::ui {
 namespace {
 
-// A deliberately slow source whose frame encodes the requested yaw in its grey level, so
-// the test can tell which request a frame answers.
-class SlowSource : public FrameSource {
+// Holds renders until the test lets them through, so a test knows a frame is rendering (or not)
+// from events instead of hoping a sleep was long enough.
+class Gate {
+ public:
+  // Worker thread: counts the arrival, then waits for a pass; false when none came in 10 s.
+  bool Pass() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ++arrived_;
+    changed_.notify_all();
+    const bool passed = changed_.wait_for(lock, std::chrono::seconds(10), [&] { return passes_ > 0; });
+    if (passed) --passes_;
+    return passed;
+  }
+  void Give(int passes) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    passes_ += passes;
+    changed_.notify_all();
+  }
+  int Arrived() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return arrived_;
+  }
+  bool WaitArrived(int n) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    return changed_.wait_for(lock, std::chrono::seconds(10), [&] { return arrived_ >= n; });
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::condition_variable changed_;
+  int arrived_ = 0;
+  int passes_ = 0;
+};
+
+// A source whose renders wait at a gate and whose frame encodes the requested yaw in its grey
+// level, so the test can tell which request a frame answers.
+class GatedSource : public FrameSource {
  public:
   std::string Label() const override { return "test pattern"; }
   bool SupportsPose() const override { return true; }
   std::vector<std::string> ExpressionControls() const override { return {"smile"}; }
   RenderedFrame Render(const FrameRequest& r, RunContext& ctx) const override {
     ++calls;
-    std::this_thread::sleep_for(std::chrono::milliseconds(40));
+    if (std::this_thread::get_id() == gui_thread) ++calls_on_gui_thread;
+    if (!gate.Pass()) ++gate_timeouts;
     ctx.ThrowIfCancelled();
     RenderedFrame f;
     f.bgr = cv::Mat(r.height, r.width, CV_8UC3, cv::Scalar::all(static_cast<int>(r.view.yaw) + 100));
     f.alpha = cv::Mat(r.height, r.width, CV_8UC1, cv::Scalar(255));
     return f;
   }
+  const std::thread::id gui_thread = std::this_thread::get_id();  // made on the GUI thread
+  mutable Gate gate;
   mutable std::atomic<int> calls{0};
+  mutable std::atomic<int> calls_on_gui_thread{0};
+  mutable std::atomic<int> gate_timeouts{0};
 };
 
 // Records every request it renders (a small black frame); has a pose of its own so the
@@ -91,47 +131,67 @@ class PreviewWorkerTest : public QObject {
   Q_OBJECT
 
  private slots:
+  // While the first frame renders (held at the gate), 100 more requests arrive: they collapse
+  // into one, so exactly two renders happen, the first request's and the last one's.
   void burstsAreCoalescedAndTheLatestStateWins() {
     PreviewWorker worker;
-    auto source = std::make_shared<SlowSource>();
+    auto source = std::make_shared<GatedSource>();
     worker.setSource(source);
     QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    PreviewRequest r;
+    r.frame.width = r.frame.height = 32;
+    r.frame.view.yaw = -50;
+    const quint64 first_serial = worker.request(r);
+    QVERIFY2(source->gate.WaitArrived(1), "the first request never started rendering");
     quint64 last_serial = 0;
-    for (int yaw = -50; yaw <= 50; ++yaw) {  // 101 requests, far faster than 40 ms each.
-      PreviewRequest r;
+    for (int yaw = -49; yaw <= 50; ++yaw) {
       r.frame.view.yaw = yaw;
-      r.frame.width = r.frame.height = 32;
       last_serial = worker.request(r);
     }
+    source->gate.Give(100);
+    QTRY_VERIFY_WITH_TIMEOUT(
+        !frames.isEmpty() && frames.last().at(0).value<PreviewFrame>().serial == last_serial, 20000);
     QTRY_VERIFY_WITH_TIMEOUT(worker.isIdle(), 20000);
-    QTest::qWait(50);
     qInfo("101 requests -> %d renders", source->calls.load());
-    QVERIFY(!frames.isEmpty());
-    QVERIFY2(source->calls.load() <= 3, "requests were not coalesced");
+    QCOMPARE(source->calls.load(), 2);
+    QCOMPARE(frames.count(), 2);
+    QCOMPARE(source->gate_timeouts.load(), 0);
     QCOMPARE(worker.requestsReceived(), quint64{101});
+    QCOMPARE(worker.framesRendered(), quint64{2});
+    const auto first = frames.first().at(0).value<PreviewFrame>();
+    QCOMPARE(first.serial, first_serial);
+    QCOMPARE(qGray(first.image.pixel(0, 0)), 50);  // yaw -50 -> grey 50.
     const auto last = frames.last().at(0).value<PreviewFrame>();
-    QCOMPARE(last.serial, last_serial);
     QCOMPARE(qGray(last.image.pixel(0, 0)), 150);  // yaw 50 -> grey 150.
     QCOMPARE(last.alpha.pixelColor(0, 0).value(), 255);
   }
 
+  // Each render waits until the GUI thread's event loop lets it through: a worker that rendered
+  // on the GUI thread, or blocked it until the frame was done, would never get its pass.
   void theGuiThreadKeepsTurningWhileRendering() {
     PreviewWorker worker;
-    auto source = std::make_shared<SlowSource>();
+    auto source = std::make_shared<GatedSource>();
     worker.setSource(source);
-    int ticks = 0;
-    QTimer timer;
-    connect(&timer, &QTimer::timeout, [&] { ++ticks; });
-    timer.start(5);
-    for (int i = 0; i < 5; ++i) {
+    QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    int passes_from_the_event_loop = 0;
+    for (int i = 1; i <= 3; ++i) {
       PreviewRequest r;
       r.frame.width = r.frame.height = 16;
-      worker.request(r);
-      QTRY_VERIFY_WITH_TIMEOUT(worker.isIdle(), 20000);
+      const quint64 serial = worker.request(r);
+      // The event loop turns while the frame is held at the gate...
+      QTRY_VERIFY_WITH_TIMEOUT(source->gate.Arrived() == i, 20000);
+      QCOMPARE(frames.count(), i - 1);
+      // ...and a timer event on the GUI thread is what releases it.
+      QTimer::singleShot(0, &worker, [&] {
+        ++passes_from_the_event_loop;
+        source->gate.Give(1);
+      });
+      QTRY_VERIFY_WITH_TIMEOUT(frames.count() == i, 20000);
+      QCOMPARE(frames.last().at(0).value<PreviewFrame>().serial, serial);
     }
-    timer.stop();
-    qInfo("GUI timer ticked %d times during 5 renders", ticks);
-    QVERIFY(ticks > 5);
+    QCOMPARE(passes_from_the_event_loop, 3);
+    QCOMPARE(source->calls_on_gui_thread.load(), 0);
+    QCOMPARE(source->gate_timeouts.load(), 0);
   }
 
   void renderErrorsArriveAsMessages() {
@@ -146,16 +206,8 @@ class PreviewWorkerTest : public QObject {
   }
 
   void initTestCase() {
-    // A synthetic morphable model (as the studio test): the real tracking and fit path
-    // without depending on the committed model.
-    QVERIFY(model_dir_.isValid());
-    const std::string model = model_dir_.filePath(QStringLiteral("synthetic.avmm")).toStdString();
-    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(model);
-    qputenv("AVATAR_MORPHABLE_MODEL", QByteArray::fromStdString(model));
-    QStandardPaths::setTestModeEnabled(true);
-    SetApplicationIdentity();
-    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
-    QSettings().clear();
+    const QString error = testing::UseSyntheticModelAndTestSettings(model_dir_);
+    QVERIFY2(error.isEmpty(), qPrintable(error));
   }
 
   // Acceptance (issue 15): the preview and the export read the driver through one path.

@@ -2,8 +2,8 @@
 // reconstruct on the worker (the event loop keeps turning), load and scrub the sample
 // driving clip, export 10 frames and verify the file, cancel an export and find nothing
 // left. With AVATAR_TEST_SAVE_SHOTS=DIR it saves screenshots of the main states there.
-// LibTorch (via the morphable model) first: Qt's `slots` macro breaks its headers.
-#include "morphable/morphable_test_util.h"
+// LibTorch (via the morphable model, in common/synthetic_studio.h) first: Qt's `slots` macro breaks its headers.
+#include "common/synthetic_studio.h"
 
 #include <QAbstractButton>
 #include <QAbstractSlider>
@@ -79,16 +79,8 @@ class StudioTest : public QObject {
 
  private slots:
   void initTestCase() {
-    // A synthetic morphable model (smooth random bases on the installed topology): the test
-    // drives the real analysis/fit/render path without depending on the committed model.
-    QVERIFY(model_dir_.isValid());
-    const std::string model = model_dir_.filePath(QStringLiteral("synthetic.avmm")).toStdString();
-    morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(model);
-    qputenv("AVATAR_MORPHABLE_MODEL", QByteArray::fromStdString(model));
-    QStandardPaths::setTestModeEnabled(true);
-    SetApplicationIdentity();
-    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
-    QSettings().clear();
+    const QString error = testing::UseSyntheticModelAndTestSettings(model_dir_);
+    QVERIFY2(error.isEmpty(), qPrintable(error));
     window_ = std::make_unique<MainWindow>();
     window_->setDialogsEnabled(false);
     window_->resize(1280, 720);
@@ -211,8 +203,32 @@ class StudioTest : public QObject {
     const double mean = cv::mean(diff)[0] + cv::mean(diff)[1] + cv::mean(diff)[2];
     qInfo("yaw 0 -> 35 degrees: mean absolute change of the on-screen viewport %.2f", mean / 3);
     QVERIFY2(mean / 3 > 1.0, "the viewport did not change when the yaw slider moved");
-    // Drag-to-orbit reports the same camera: back to yaw 0 by dragging, then reset.
-    w.posePanel()->yawSlider()->setValue(0);
+    // A real mouse drag in the viewport orbits: 100 px to the left at 0.3 degrees per pixel
+    // takes the yaw from 35 to 5 (the pose sliders follow) and renders the new view.
+    const QSlider* yaw = w.posePanel()->yawSlider();
+    const QSlider* pitch = w.posePanel()->pitchSlider();
+    QCOMPARE(yaw->value(), 35);
+    const QPoint grab = vp->rect().center();
+    const QImage frame_at_35 = w.lastFrame();
+    shown.clear();
+    QTest::mousePress(vp, Qt::LeftButton, Qt::NoModifier, grab);
+    for (int step = 1; step <= 5; ++step) QTest::mouseMove(vp, grab - QPoint(20 * step, 0));
+    QTest::mouseRelease(vp, Qt::LeftButton, Qt::NoModifier, grab - QPoint(100, 0));
+    QCOMPARE(yaw->value(), 5);
+    QCOMPARE(pitch->value(), 0);
+    QTRY_VERIFY_WITH_TIMEOUT(!shown.isEmpty() && w.lastFrame() != frame_at_35, 30000);
+    // Dragging down tilts the head down: 50 px = -15 degrees of pitch.
+    QTest::mousePress(vp, Qt::LeftButton, Qt::NoModifier, grab);
+    QTest::mouseMove(vp, grab + QPoint(0, 50));
+    QTest::mouseRelease(vp, Qt::LeftButton, Qt::NoModifier, grab + QPoint(0, 50));
+    QCOMPARE(pitch->value(), -15);
+    QCOMPARE(yaw->value(), 5);
+    // A double-click (click, double-click, release, as a real mouse sends them) resets the view.
+    QTest::mouseClick(vp, Qt::LeftButton, Qt::NoModifier, grab);
+    QTest::mouseDClick(vp, Qt::LeftButton, Qt::NoModifier, grab);
+    QTest::mouseRelease(vp, Qt::LeftButton, Qt::NoModifier, grab);
+    QCOMPARE(yaw->value(), 0);
+    QCOMPARE(pitch->value(), 0);
     QVERIFY(WaitForFreshFrame(w, shown));
   }
 

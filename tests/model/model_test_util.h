@@ -1,0 +1,35 @@
+#pragma once
+// Helpers shared by the model tests.
+
+#include <cstring>
+
+#include <gtest/gtest.h>
+
+#include "core/model/goha_model.h"
+
+namespace avatar::testing {
+
+// Every parameter and buffer of `b` equals its namesake in `a` bit for bit (same names, shapes,
+// dtypes and bytes): what a checkpoint round trip must give.
+inline void ExpectBitIdenticalWeights(const GohaModel& a, const GohaModel& b) {
+  const auto pa = a->named_parameters(true);
+  const auto pb = b->named_parameters(true);
+  ASSERT_EQ(pa.size(), pb.size());
+  for (const auto& item : pa) {
+    const torch::Tensor* other = pb.find(item.key());
+    ASSERT_NE(other, nullptr) << item.key() << " is missing";
+    ASSERT_EQ(item.value().sizes(), other->sizes()) << item.key();
+    ASSERT_EQ(item.value().dtype(), other->dtype()) << item.key();
+    EXPECT_EQ(std::memcmp(item.value().data_ptr(), other->data_ptr(), item.value().nbytes()), 0) << item.key();
+  }
+  const auto ba = a->named_buffers(true);
+  const auto bb = b->named_buffers(true);
+  ASSERT_EQ(ba.size(), bb.size());
+  for (const auto& item : ba) {
+    const torch::Tensor* other = bb.find(item.key());
+    ASSERT_NE(other, nullptr) << item.key() << " is missing";
+    EXPECT_TRUE(torch::equal(item.value(), *other)) << item.key();
+  }
+}
+
+}  // namespace avatar::testing
