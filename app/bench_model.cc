@@ -2,8 +2,6 @@
 // paper and lite configs, the session's cached-frame vs full-recompute ratio, the rasterizer
 // against brute force, and peak memory; every ratio against baselines measured in this run.
 
-#include <sys/resource.h>
-
 #include <algorithm>
 #include <cstdio>
 #include <functional>
@@ -13,6 +11,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "core/model/goha_model.h"
 #include "core/model/rasterize.h"
@@ -46,28 +45,6 @@ struct BenchModelOptions {
   }
 };
 
-std::string Fixed(double value, int digits) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.*f", digits, value);
-  return buffer;
-}
-
-std::vector<std::string> Split(const std::string& text) {
-  std::vector<std::string> parts;
-  std::stringstream stream(text);
-  std::string item;
-  while (std::getline(stream, item, ',')) {
-    if (!item.empty()) parts.push_back(item);
-  }
-  return parts;
-}
-
-double PeakRssMb() {
-  struct rusage usage {};
-  getrusage(RUSAGE_SELF, &usage);
-  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // Linux: kilobytes
-}
-
 // Median wall time of `fn` over `repeats` runs after one warm-up.
 double MedianSeconds(int repeats, RunContext& ctx, const std::function<void()>& fn) {
   fn();
@@ -78,8 +55,7 @@ double MedianSeconds(int repeats, RunContext& ctx, const std::function<void()>& 
     fn();
     t.push_back(timer.Seconds());
   }
-  std::sort(t.begin(), t.end());
-  return t[t.size() / 2];
+  return Median(t);
 }
 
 // A stand-in I_exp for timing only (a shaded disk with a mouth that opens with jawOpen). The
@@ -131,27 +107,27 @@ void BenchSession(const std::string& config, int repeats, RunContext& ctx) {
   // First: one reconstruct + one final frame (the peak-memory figure for the paper config).
   Timer first;
   Avatar avatar = session.ReconstructFromAnalysis(portrait, fit, quiet);
-  const Frame final_frame = session.Animate(avatar, {{{"jawOpen", 0.3f}}}, View{10, 5}, Preset::kFinal);
+  const Frame final_frame = session.Animate(avatar, {{{"jawOpen", 0.3f}}}, ViewPose{10, -5}, Preset::kFinal);
   const double first_s = first.Seconds();
   const double rss = PeakRssMb();
   int step = 0;
   const double full = MedianSeconds(repeats, ctx, [&] {
     avatar = session.ReconstructFromAnalysis(portrait, fit, quiet);
-    session.Animate(avatar, {{{"jawOpen", 0.1f + 0.01f * static_cast<float>(++step)}}}, View{0, 0}, Preset::kStandard);
+    session.Animate(avatar, {{{"jawOpen", 0.1f + 0.01f * static_cast<float>(++step)}}}, ViewPose{}, Preset::kStandard);
   });
   double yaw = 0.0;
   const double camera_only = MedianSeconds(repeats, ctx, [&] {
-    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kStandard);
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, ViewPose{yaw += 7.0, -5}, Preset::kStandard);
   });
   const double preview = MedianSeconds(repeats, ctx, [&] {
-    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kPreview);
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, ViewPose{yaw += 7.0, -5}, Preset::kPreview);
   });
   const double expression = MedianSeconds(repeats, ctx, [&] {
-    session.Animate(avatar, {{{"jawOpen", 0.2f + 0.01f * static_cast<float>(++step)}}}, View{yaw, 5},
+    session.Animate(avatar, {{{"jawOpen", 0.2f + 0.01f * static_cast<float>(++step)}}}, ViewPose{yaw, -5},
                     Preset::kStandard);
   });
   const double final_s = MedianSeconds(1, ctx, [&] {
-    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, View{yaw += 7.0, 5}, Preset::kFinal);
+    session.Animate(avatar, {{{"jawOpen", 0.5f}}}, ViewPose{yaw += 7.0, -5}, Preset::kFinal);
   });
   std::cout << "| " << config << " | " << Fixed(first_s, 2) << " | " << Fixed(full, 3) << " | " << Fixed(expression, 3)
             << " | " << Fixed(camera_only, 3) << " | " << Fixed(preview, 3) << " | " << Fixed(final_s, 3) << " | "
@@ -262,7 +238,7 @@ void BenchRasterizer(int repeats, RunContext& ctx) {
 
 int RunBenchModelImpl(const BenchModelOptions& options, RunContext& ctx) {
   options.Validate();
-  const auto configs = Split(options.configs);
+  const auto configs = SplitList(options.configs);
   for (const auto& c : configs) ModelConfig::FromName(c);
   const int threads = ConfiguredThreads() > 0 ? ConfiguredThreads() : ConfigureThreads(options.common.threads);
   const double gemm = MeasureGemmGflops();

@@ -4,8 +4,6 @@
 // losses on the same batch (backward + update = step - forward), samples/s, peak memory, and the
 // step time as ratios to the tiny batch-1 step and to a GEMM measured right before the case.
 
-#include <sys/resource.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -17,6 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "core/io/atomic_file.h"
 #include "core/model/goha_model.h"
@@ -63,16 +62,6 @@ struct BenchTrainOptions {
   void Validate() const;
 };
 
-std::vector<std::string> SplitList(const std::string& text) {
-  std::vector<std::string> parts;
-  std::stringstream stream(text);
-  std::string item;
-  while (std::getline(stream, item, ',')) {
-    if (!item.empty()) parts.push_back(item);
-  }
-  return parts;
-}
-
 std::vector<int64_t> ParseBatches(const std::string& text) {
   std::vector<int64_t> out;
   for (const auto& item : SplitList(text)) {
@@ -106,18 +95,6 @@ void BenchTrainOptions::Validate() const {
   common.Validate();
 }
 
-std::string Fixed(double value, int digits) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.*f", digits, value);
-  return buffer;
-}
-
-double Median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
-
 // ---------------------------------------------------------------------------------------------
 // Memory. Linux keeps a resettable high-water mark (VmHWM; writing 5 to /proc/self/clear_refs
 // resets it to the current RSS), so each case gets its own peak. Without it the growth of
@@ -143,12 +120,6 @@ bool ResetPeakRss() {
   out << "5";
   out.flush();
   return static_cast<bool>(out);
-}
-
-double MaxRssMb() {
-  struct rusage usage {};
-  getrusage(RUSAGE_SELF, &usage);
-  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // Linux: kilobytes
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -189,9 +160,9 @@ class BenchBatchSource : public train::BatchSource {
     t.source_matte = head;
     t.source_eye_mouth = mouth.to(torch::kFloat32);
     t.source_label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-    render::OrbitPose pose;
+    render::ViewPose pose;  // The camera to the side and 3 degrees above.
     pose.yaw = 8.0 + 4.0 * static_cast<double>(index % 3);
-    pose.pitch = 3.0;
+    pose.pitch = -3.0;
     const render::Cameras target_cam{render::OrbitCam2World(pose).unsqueeze(0),
                                      render::DefaultIntrinsics().unsqueeze(0)};
     t.target_label = render::LabelsFromCameras(target_cam)[0];
@@ -244,7 +215,7 @@ CaseResult RunCase(const std::string& config_name, int64_t batch, const BenchTra
   r.batch = batch;
   // This case's baseline: the GEMM rate right before it (the machine is shared).
   r.gemm_gflops = MeasureGemmGflops(kGemmSize, 3);
-  const double rss_start = peak_resettable ? StatusMb("VmRSS") : MaxRssMb();
+  const double rss_start = peak_resettable ? StatusMb("VmRSS") : PeakRssMb();
   if (peak_resettable) ResetPeakRss();
   {
     torch::manual_seed(1);
@@ -286,7 +257,7 @@ CaseResult RunCase(const std::string& config_name, int64_t batch, const BenchTra
       r.loss_rel_diff = std::max(r.loss_rel_diff, std::abs(forward_loss - s.loss) / std::max(std::abs(s.loss), 1e-12));
     }
   }
-  r.peak_rss_mb = peak_resettable ? StatusMb("VmHWM") : MaxRssMb();
+  r.peak_rss_mb = peak_resettable ? StatusMb("VmHWM") : PeakRssMb();
   r.rss_growth_mb = std::max(0.0, r.peak_rss_mb - rss_start);
   r.step = Median(r.step_s);
   r.forward = Median(r.forward_s);

@@ -1,7 +1,6 @@
 // `avatar-studio analyze IMAGE|VIDEO [--json] [--out-dir DIR]`: face analysis of a photo (all
 // faces, the main face's aligned crop, matte, masks, overlay) or of a video (tracked landmarks
 // and pose per frame, streamed so memory stays flat with the clip's length).
-#include <sys/resource.h>
 
 #include <filesystem>
 #include <iostream>
@@ -9,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "app/commands.h"
 #include "core/face/face_analyzer.h"
@@ -58,12 +58,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-
-double PeakRssMb() {
-  rusage usage{};
-  getrusage(RUSAGE_SELF, &usage);
-  return usage.ru_maxrss / 1024.0;  // Linux reports kilobytes
-}
 
 json BoxJson(const cv::Rect2f& b) { return {{"x", b.x}, {"y", b.y}, {"width", b.width}, {"height", b.height}}; }
 json PoseJson(const face::HeadPose& p) { return {{"yaw", p.yaw}, {"pitch", p.pitch}, {"roll", p.roll}}; }

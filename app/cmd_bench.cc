@@ -5,6 +5,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "app/cli_util.h"
 #include "core/model/triplane_decoder.h"
 #include "core/render/renderer.h"
 #include "core/util/error.h"
@@ -48,22 +49,6 @@ const std::vector<RenderCase>& RenderCases() {
       {"tiny", 32, 12, 12, 64},
   };
   return cases;
-}
-
-std::vector<std::string> SplitCommas(const std::string& text) {
-  std::vector<std::string> parts;
-  std::stringstream stream(text);
-  std::string item;
-  while (std::getline(stream, item, ',')) {
-    if (!item.empty()) parts.push_back(item);
-  }
-  return parts;
-}
-
-std::string Fixed(double value, int digits) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.*f", digits, value);
-  return buffer;
 }
 
 int RunBenchRender(const std::vector<std::string>& args) {
@@ -115,7 +100,7 @@ void BenchRenderOptions::Validate() const {
   AVATAR_CHECK_OPTION(repeats >= 1 && repeats <= 100) << "--repeats must be 1..100, got " << repeats;
   AVATAR_CHECK_OPTION(batch >= 1 && batch <= 64) << "--batch must be 1..64, got " << batch;
   AVATAR_CHECK_OPTION(chunk_rays >= 1) << "--chunk-rays must be >= 1, got " << chunk_rays;
-  for (const auto& name : SplitCommas(presets)) {
+  for (const auto& name : SplitList(presets)) {
     bool known = name == "all";
     for (const auto& c : RenderCases()) known = known || name == c.name;
     AVATAR_CHECK_OPTION(known) << "unknown preset '" << name << "' (paper, medium, small, tiny, all)";
@@ -125,7 +110,7 @@ void BenchRenderOptions::Validate() const {
 
 int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
   options.Validate();
-  const auto wanted = SplitCommas(options.presets);
+  const auto wanted = SplitList(options.presets);
   const bool all = std::find(wanted.begin(), wanted.end(), "all") != wanted.end();
   const int threads = ConfiguredThreads() > 0 ? ConfiguredThreads() : ConfigureThreads(options.common.threads);
   torch::InferenceMode inference;

@@ -8,6 +8,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "app/cli_util.h"
 #include "app/commands.h"
 #include "core/face/face_analyzer.h"
 #include "core/io/atomic_file.h"
@@ -60,16 +61,6 @@ struct BuildMorphableCommandOptions {
     common.Validate();
   }
 };
-
-std::vector<std::string> Split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    if (!item.empty()) out.push_back(item);
-  }
-  return out;
-}
 
 // Every face of every still photo; franck_*.jpg stills belong to the franck clip's person.
 void CollectPhotos(const face::FaceAnalyzer& analyzer, const DataPaths& paths, std::vector<morphable::BuildSource>& out,
@@ -205,7 +196,7 @@ int RunBuildMorphableImpl(const BuildMorphableCommandOptions& o, RunContext& ctx
   fa.min_face_px = 48;  // the threshold the shipped basis was built with (the interactive default is 24)
   const face::FaceAnalyzer analyzer(fa);
   std::vector<morphable::BuildSource> sources;
-  const auto clips = Split(o.clips);
+  const auto clips = SplitList(o.clips);
   for (size_t c = 0; c < clips.size(); ++c) {
     RunContext::ProgressRange range(ctx, 0.8 * c / clips.size(), 0.8 * (c + 1) / clips.size());
     const fs::path path = paths.Require("samples/" + clips[c], "a clip for the expression basis");

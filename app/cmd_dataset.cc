@@ -178,42 +178,57 @@ int RunInspect(const std::vector<std::string>& args) {
   AVATAR_CHECK_OPTION(o.pairs >= 1 && o.pairs <= 64) << "--pairs must be in 1..64";
   AVATAR_CHECK_OPTION(o.kind == "real" || o.kind == "synthetic") << "--kind must be real or synthetic";
   const fs::path dir = positionals[0];
+  // The shards are opened (and checked) before anything is written into DIR.
+  const train::TrainDataset train_set = train::TrainDataset::Open(dir.string(), "train");
+  const train::TrainDataset val_set = train::TrainDataset::Open(dir.string(), "val");
   const json ds = LoadJson(dir / "dataset.json");
-  const json records = LoadJson(dir / ds.value("records", std::string("records.json")));
-  const json pairs = LoadJson(dir / ds.value("pairs", std::string("pairs.json")));
-  std::cout << "dataset " << dir.string() << " (size " << ds.value("size", 0) << ")\n";
-  for (auto it = ds["counts"].begin(); it != ds["counts"].end(); ++it)
-    std::cout << "  " << std::left << std::setw(12) << it.key() << std::right << " " << it.value() << "\n";
-  std::cout << "split (seed " << ds["split"].value("seed", 0) << "): " << ds["split"]["train"].size()
-            << " train identities, " << ds["split"]["val"].size() << " val identities:\n  val:";
-  for (const auto& n : ds["split"]["val"]) std::cout << " " << n.get<std::string>();
-  std::cout << "\n";
   std::vector<double> yaw, pitch, expr, d_yaw, d_pitch, d_expr, s_yaw, s_pitch, s_expr;
-  for (const auto& r : records) {
-    yaw.push_back(r["pose"]["yaw"].get<double>());
-    pitch.push_back(r["pose"]["pitch"].get<double>());
-    double s = 0.0;
-    for (const auto& b : r["beta"]) s += b.get<double>() * b.get<double>();
-    expr.push_back(std::sqrt(s));
-  }
-  for (const auto& p : pairs) {
-    if (p["kind"] == "clip") {
-      d_yaw.push_back(p["d_yaw"].get<double>());
-      d_pitch.push_back(p["d_pitch"].get<double>());
-      d_expr.push_back(p["d_expression"].get<double>());
-    } else if (p["kind"] == "synthetic") {
-      s_yaw.push_back(p["d_yaw"].get<double>());
-      s_pitch.push_back(p["d_pitch"].get<double>());
-      s_expr.push_back(p["d_expression"].get<double>());
-    }
-  }
   std::vector<double> f_yaw, f_pitch;
   const bool has_synthetic = ds.contains("synthetic");
-  if (has_synthetic) {
-    for (const auto& r : LoadJson(dir / ds["synthetic"].get<std::string>())) {
-      f_yaw.push_back(r["pose"]["yaw"].get<double>());
-      f_pitch.push_back(r["pose"]["pitch"].get<double>());
+  // Fields of the wrong type or missing name the file instead of failing inside the JSON library.
+  fs::path reading = dir / "dataset.json";
+  try {
+    const json records = LoadJson(reading = dir / ds.value("records", std::string("records.json")));
+    const json pairs = LoadJson(reading = dir / ds.value("pairs", std::string("pairs.json")));
+    reading = dir / "dataset.json";
+    std::cout << "dataset " << dir.string() << " (size " << ds.value("size", 0) << ")\n";
+    for (auto it = ds.at("counts").begin(); it != ds.at("counts").end(); ++it)
+      std::cout << "  " << std::left << std::setw(12) << it.key() << std::right << " " << it.value() << "\n";
+    const json& split = ds.at("split");
+    std::cout << "split (seed " << split.value("seed", 0) << "): " << split.at("train").size() << " train identities, "
+              << split.at("val").size() << " val identities:\n  val:";
+    for (const auto& n : split.at("val")) std::cout << " " << n.get<std::string>();
+    std::cout << "\n";
+    reading = dir / ds.value("records", std::string("records.json"));
+    for (const auto& r : records) {
+      yaw.push_back(r.at("pose").at("yaw").get<double>());
+      pitch.push_back(r.at("pose").at("pitch").get<double>());
+      double s = 0.0;
+      for (const auto& b : r.at("beta")) s += b.get<double>() * b.get<double>();
+      expr.push_back(std::sqrt(s));
     }
+    reading = dir / ds.value("pairs", std::string("pairs.json"));
+    for (const auto& p : pairs) {
+      if (p.at("kind") == "clip") {
+        d_yaw.push_back(p.at("d_yaw").get<double>());
+        d_pitch.push_back(p.at("d_pitch").get<double>());
+        d_expr.push_back(p.at("d_expression").get<double>());
+      } else if (p.at("kind") == "synthetic") {
+        s_yaw.push_back(p.at("d_yaw").get<double>());
+        s_pitch.push_back(p.at("d_pitch").get<double>());
+        s_expr.push_back(p.at("d_expression").get<double>());
+      }
+    }
+    if (has_synthetic) {
+      reading = dir / ds.at("synthetic").get<std::string>();
+      for (const auto& r : LoadJson(reading)) {
+        f_yaw.push_back(r.at("pose").at("yaw").get<double>());
+        f_pitch.push_back(r.at("pose").at("pitch").get<double>());
+      }
+    }
+  } catch (const json::exception& e) {
+    throw InvalidInput(reading.string() + " does not have the expected content (" + e.what() +
+                       "): rebuild the dataset");
   }
   auto top = [](const std::vector<double>& v) { return v.empty() ? 1.0 : std::max(1e-3, *std::max_element(v.begin(), v.end()) * 1.0001); };
   PrintHistogram("yaw of all frames (degrees)", yaw, -45.0, 45.0, 9);
@@ -251,8 +266,6 @@ int RunInspect(const std::vector<std::string>& args) {
     std::cout << "histograms (clip and synthetic pairs: |d yaw|, |d pitch|, |d beta|): " << hist.string() << "\n";
   }
 
-  const train::TrainDataset train_set = train::TrainDataset::Open(dir.string(), "train");
-  const train::TrainDataset val_set = train::TrainDataset::Open(dir.string(), "val");
   std::cout << "shards: train " << train_set.size() << " pairs (" << train_set.CountKind(train::PairKind::kPhoto)
             << " photo, " << train_set.CountKind(train::PairKind::kClip) << " clip) over " << train_set.frames()
             << " frames, " << train_set.Identities().size() << " identities; val " << val_set.size() << " pairs over "

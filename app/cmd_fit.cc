@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "app/commands.h"
 #include "core/face/face_analyzer.h"
@@ -76,18 +77,6 @@ struct FitCommandOptions {
     common.Validate();
   }
 };
-
-std::map<std::string, float> ParseExpr(const std::vector<std::string>& items) {
-  std::map<std::string, float> out;
-  for (const auto& item : items) {
-    const auto eq = item.find('=');
-    AVATAR_CHECK_OPTION(eq != std::string::npos && eq > 0) << "--expr wants name=value, got '" << item << "'";
-    float v = 0.0f;
-    options::ParseValue("--expr " + item.substr(0, eq), item.substr(eq + 1), v);
-    out[item.substr(0, eq)] = v;
-  }
-  return out;
-}
 
 void SaveFloatImage(const fs::path& path, const cv::Mat& img) {
   cv::Mat out;
@@ -168,7 +157,7 @@ FaceOutcome FitOne(const FitCommandOptions& o, const morphable::MorphableModel& 
 
 int RunFitImpl(const FitCommandOptions& o, RunContext& ctx) {
   o.Validate();
-  const auto edits = ParseExpr(o.expr);
+  const auto edits = ParseControlFlags(o.expr);
   const DataPaths paths = DataPaths::Resolve(o.common.data_dir);
   std::optional<morphable::MorphableModel> custom;
   if (!o.model.empty()) custom = morphable::MorphableModel::Load(o.model, morphable::LoadTopology(paths));
@@ -192,7 +181,7 @@ int RunFitImpl(const FitCommandOptions& o, RunContext& ctx) {
     try {
       portrait = analyzer.AnalyzePortrait(bgr, ctx);
     } catch (const InvalidInput& e) {
-      if (!o.all_faces) throw;
+      if (!o.all_faces) throw InvalidInput("photo '" + o.input + "': " + e.what());
       std::cout << "face " << index << ": skipped (" << e.what() << ")\n";
       continue;
     }
@@ -266,9 +255,9 @@ int RunBenchMorphableImpl(const BenchMorphableOptions& o, RunContext& ctx) {
   const double gflops = MeasureGemmGflops();
   const double gemm_ms = 2.0 * 1024 * 1024 * 1024 / (gflops * 1e9) * 1e3;
   // Synthetic landmarks: a random-ish face seen from a turned camera, facemesh depth convention.
-  render::OrbitPose pose;
+  render::ViewPose pose;  // The camera 20 degrees to the side and 5 above.
   pose.yaw = 20;
-  pose.pitch = 5;
+  pose.pitch = -5;
   const morphable::CameraLabel cam = morphable::LabelFromTensor(
       render::LabelsFromCameras({render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)}));
   const cv::Size crop(512, 512);

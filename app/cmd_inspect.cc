@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "core/model/goha_model.h"
+#include "core/pipeline/quality.h"
 #include "core/util/error.h"
 
 namespace avatar::app {
@@ -107,6 +108,9 @@ int RunInspectImpl(const InspectOptions& options, RunContext& ctx) {
             << static_cast<int64_t>(model->decoder->FlopsPerPoint()) << " FLOPs per sample x " << samples
             << " samples per ray; norms, activations, "
                "plane lookups and the nearest-neighbour search are not counted.\n";
+  SessionOptions session_options;
+  session_options.data_dir = options.common.data_dir;
+  std::cout << "\n" << QualityLadderHelp(session_options);
   return kExitOk;
 }
 
@@ -115,7 +119,8 @@ int RunInspect(const std::vector<std::string>& args) {
     InspectOptions options;
     std::vector<std::string> positionals;
     if (!ParseCommand(options, args, "avatar-studio inspect [--config paper|lite|tiny]",
-                      "Lists the GOHA network's modules with parameter counts, tensor shapes and analytic FLOPs.",
+                      "Lists the GOHA network's modules with parameter counts, tensor shapes and analytic FLOPs,\n"
+                      "then the quality ladder with this machine's cached time estimates.",
                       &positionals)) {
       return kExitOk;
     }

@@ -1,10 +1,12 @@
 #include "app/cmd_reconstruct.h"
 
+#include <algorithm>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
 
 #include "core/io/image_io.h"
+#include "core/pipeline/quality.h"
 #include "core/pipeline/source_analysis.h"
 #include "core/util/error.h"
 #include "core/util/timer.h"
@@ -14,6 +16,7 @@ namespace avatar::app {
 void ReconstructOptions::Validate() const {
   AVATAR_CHECK_OPTION(!input.empty()) << "missing IMAGE: give the portrait photo to reconstruct";
   AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
+  if (!quality.empty()) QualityPresetByName(quality);
   session.Validate();
   refine.Validate();
   common.Validate();
@@ -31,6 +34,23 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
               << so.seed << "); the avatar will look like noise.\n";
   }
   const cv::Mat image = LoadImageBgr(options.input);
+  RefineOptions refine = options.refine;
+  refine.data_dir = options.common.data_dir;
+  if (!options.quality.empty()) {
+    const QualityPreset& preset = QualityPresetByName(options.quality);
+    if (!refine.Enabled()) refine = preset.Refine(refine);
+    const std::filesystem::path cache = QualityCachePath(options.common.data_dir);
+    bool measured = false;
+    if (!ReadCachedQualityEstimates(cache, info.model_id, QualityEstimateThreads())) {
+      std::cout << "Measuring the quality ladder on this machine (first use of this model at "
+                << QualityEstimateThreads() << " threads; cached in '" << cache.string() << "')...\n"
+                << std::flush;
+    }
+    const QualityEstimates estimates = CachedOrMeasuredQualityEstimates(session, cache, ctx, refine, &measured);
+    std::cout << "Quality '" << preset.name << "' (" << preset.Describe(info) << "): "
+              << FormatQualityEstimate(estimates.Find(preset.name)) << " (" << (measured ? "measured now" : "cached")
+              << "; face analysis comes on top).\n";
+  }
   // Face-analysis refusals (no face, too small, turned too far) name the photo.
   auto analyse = [&](auto&& run) {
     try {
@@ -40,7 +60,7 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
     }
   };
   Avatar avatar;
-  if (!options.refine.Enabled()) {
+  if (!refine.Enabled()) {
     avatar = analyse([&] { return session.Reconstruct(image, ctx); });
   } else {
     SourceAnalysis analysis;
@@ -53,8 +73,6 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
       avatar = session.ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
     }
     RunContext::ProgressRange range(ctx, 0.5, 1.0);
-    RefineOptions refine = options.refine;
-    refine.data_dir = options.common.data_dir;
     const RefineResult r = RefineAvatar(session, avatar, analysis, refine, ctx);
     avatar = r.avatar;
     std::ostringstream line;
@@ -73,9 +91,15 @@ int RunReconstruct(const std::vector<std::string>& args) {
   return GuardedRun("reconstruct", [&] {
     ReconstructOptions options;
     std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio reconstruct IMAGE -o FILE.avatar [options]",
-                      "Finds the face, fits the morphable model and reconstructs the avatar's tri-planes\n"
-                      "(canonical + appearance), saved for `avatar-studio render` and the studio.",
+    std::string description =
+        "Finds the face, fits the morphable model and reconstructs the avatar's tri-planes\n"
+        "(canonical + appearance), saved for `avatar-studio render` and the studio.";
+    // The ladder's estimates are looked up only for the help text.
+    if (std::find(args.begin(), args.end(), "--help") != args.end() ||
+        std::find(args.begin(), args.end(), "-h") != args.end()) {
+      description += "\n\n" + QualityLadderHelp();
+    }
+    if (!ParseCommand(options, args, "avatar-studio reconstruct IMAGE -o FILE.avatar [options]", description,
                       &positionals)) {
       return kExitOk;
     }

@@ -20,6 +20,9 @@ struct ReconstructOptions {
   std::string output = "portrait.avatar";
   // Model selection.
   SessionOptions session;
+  // Quality preset (core/pipeline/quality.h: instant ... best, paper); "" = none. Its refinement
+  // applies unless --refine-steps or --refine-seconds is given.
+  std::string quality;
   // Optional per-portrait refinement of the planes (--refine-steps, --refine-seconds, ...).
   RefineOptions refine = NoRefinement();
   // Threads, data folder, verbosity.
@@ -33,6 +36,8 @@ struct ReconstructOptions {
   template <typename V>
   void Visit(V&& v) {
     v("output", output, "Avatar file to write (.avatar)", 'o');
+    v("quality", quality,
+      "Quality preset: instant, preview, standard, fine, best or paper (the published setting); see the list below");
     refine.Visit(v);
     session.Visit(v);
     common.Visit(v);
@@ -85,8 +90,5 @@ struct RenderCommandOptions {
 
 int RunRender(const std::vector<std::string>& args);
 int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx);
-
-// "name=value" strings -> Expression; throws InvalidOptions on malformed entries.
-Expression ParseExpressionFlags(const std::vector<std::string>& entries);
 
 }  // namespace avatar::app

@@ -3,6 +3,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "app/cli_util.h"
 #include "app/cmd_reconstruct.h"
 #include "core/io/image_io.h"
 #include "core/util/error.h"
@@ -10,23 +11,11 @@
 
 namespace avatar::app {
 
-Expression ParseExpressionFlags(const std::vector<std::string>& entries) {
-  Expression e;
-  for (const auto& entry : entries) {
-    const size_t eq = entry.find('=');
-    AVATAR_CHECK_OPTION(eq != std::string::npos && eq > 0 && eq + 1 < entry.size())
-        << "--expr expects name=value, got '" << entry << "'";
-    float value = 0.0f;
-    options::ParseValue("--expr " + entry.substr(0, eq), entry.substr(eq + 1), value);
-    AVATAR_CHECK_OPTION(std::isfinite(value)) << "--expr " << entry << ": value must be finite";
-    e.controls[entry.substr(0, eq)] = value;
-  }
-  return e;
-}
-
 void RenderCommandOptions::Validate() const {
   AVATAR_CHECK_OPTION(!input.empty()) << "missing FILE.avatar: give the avatar to render";
   AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
+  AVATAR_CHECK_OPTION(std::isfinite(yaw) && std::isfinite(roll) && std::isfinite(pitch) && std::abs(pitch) < 90.0)
+      << "--yaw, --pitch and --roll must be finite, --pitch within (-90, 90) degrees, got pitch " << pitch;
   PresetFromName(preset);
   ParseExpressionFlags(expr);
   session.Validate();
@@ -51,10 +40,12 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
               << "); the frame is not a result.\n";
   }
   const Avatar avatar = session.LoadAvatar(options.input);
-  View view;
+  // The flags name the camera (pitch > 0: the camera above, looking down); the pose names the
+  // head, which tilts down and rolls the other way in that picture.
+  ViewPose view;
   view.yaw = options.yaw;
-  view.pitch = options.pitch;
-  view.roll = options.roll;
+  view.pitch = -options.pitch;
+  view.roll = -options.roll;
   const Frame frame =
       session.Animate(avatar, ParseExpressionFlags(options.expr), view, PresetFromName(options.preset), &ctx);
   cv::Mat out = frame.bgr;

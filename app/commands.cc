@@ -118,53 +118,92 @@ int GuardedRun(const char* command, const std::function<int()>& body) {
   }
 }
 
-int Main(int argc, char** argv) {
-  std::signal(SIGINT, OnSigint);
-  std::vector<std::string> args(argv + 1, argv + argc);
-  if (!args.empty()) {
-    const std::string first = args[0];
-    if (first == "--help" || first == "-h" || first == "help") {
-      PrintTopHelp();
-      return kExitOk;
-    }
-    if (first == "--version") {
-      const char* wait_policy = std::getenv("OMP_WAIT_POLICY");
-      std::cout << "avatar-studio " << kVersion << " (LibTorch " << TORCH_VERSION << ", OpenCV " << CV_VERSION
-                << ", OpenMP wait policy " << (wait_policy != nullptr ? wait_policy : "default") << ")\n";
-      // Which neural model renders by default (found, not loaded).
-      try {
-        std::string origin;
-        const std::filesystem::path model = ResolveCheckpoint(SessionOptions{}, &origin);
-        std::cout << "default model: " << model.string() << " (" << origin << ")\n";
-      } catch (const Error& e) {
-        std::cout << "default model: none (" << e.what() << ")\n";
-      }
-      return kExitOk;
-    }
-    if (first[0] != '-') {
-      for (const auto& c : CommandTable()) {
-        if (first != c.name) continue;
-        if (c.run == nullptr) {
-          std::cerr << "avatar-studio " << c.name << ": not available in version " << kVersion
-                    << " yet (" << c.summary << "). See 'avatar-studio --help' for what this version can do.\n";
-          return kExitError;
-        }
-        return c.run(std::vector<std::string>(args.begin() + 1, args.end()));
-      }
-      std::cerr << "avatar-studio: unknown command '" << first << "'. Run 'avatar-studio --help' for the list.\n";
-      return kExitUsage;
-    }
+namespace {
+
+// Sends std::cout / std::cerr to other streams for its lifetime (no-op for the same streams).
+class StreamRedirect {
+ public:
+  StreamRedirect(std::ostream& out, std::ostream& err)
+      : cout_(std::cout.rdbuf(out.rdbuf())), cerr_(std::cerr.rdbuf(err.rdbuf())) {}
+  ~StreamRedirect() {
+    std::cout.flush();
+    std::cerr.flush();
+    std::cout.rdbuf(cout_);
+    std::cerr.rdbuf(cerr_);
   }
-  return RunGui(argc, argv, args);
+  StreamRedirect(const StreamRedirect&) = delete;
+  StreamRedirect& operator=(const StreamRedirect&) = delete;
+
+ private:
+  std::streambuf* cout_;
+  std::streambuf* cerr_;
+};
+
+void PrintVersion() {
+  const char* wait_policy = std::getenv("OMP_WAIT_POLICY");
+  std::cout << "avatar-studio " << kVersion << " (LibTorch " << TORCH_VERSION << ", OpenCV " << CV_VERSION
+            << ", OpenMP wait policy " << (wait_policy != nullptr ? wait_policy : "default") << ")\n";
+  // Which neural model renders by default (found, not loaded).
+  try {
+    std::string origin;
+    const std::filesystem::path model = ResolveCheckpoint(SessionOptions{}, &origin);
+    std::cout << "default model: " << model.string() << " (" << origin << ")\n";
+  } catch (const Error& e) {
+    std::cout << "default model: none (" << e.what() << ")\n";
+  }
 }
 
-}  // namespace avatar::app
-
-#ifndef AVATAR_WITH_GUI
-namespace avatar::app {
-int RunGui(int /*argc*/, char** /*argv*/, const std::vector<std::string>& /*args*/) {
-  std::cerr << "avatar-studio: this build has no GUI (AVATAR_BUILD_GUI=OFF); run 'avatar-studio --help' for commands.\n";
+// Runs a command line for which IsCommandLine is true.
+int Dispatch(const std::vector<std::string>& args) {
+  const std::string& first = args.at(0);
+  if (first == "--help" || first == "-h" || first == "help") {
+    PrintTopHelp();
+    return kExitOk;
+  }
+  if (first == "--version") {
+    PrintVersion();
+    return kExitOk;
+  }
+  for (const auto& c : CommandTable()) {
+    if (first != c.name) continue;
+    if (c.run == nullptr) {
+      std::cerr << "avatar-studio " << c.name << ": not available in version " << kVersion << " yet (" << c.summary
+                << "). See 'avatar-studio --help' for what this version can do.\n";
+      return kExitError;
+    }
+    return c.run(std::vector<std::string>(args.begin() + 1, args.end()));
+  }
+  std::cerr << "avatar-studio: unknown command '" << first << "'. Run 'avatar-studio --help' for the list.\n";
   return kExitUsage;
 }
+
+}  // namespace
+
+bool IsCommandLine(const std::vector<std::string>& args) {
+  if (args.empty()) return false;
+  const std::string& first = args[0];
+  return first.empty() || first[0] != '-' || first == "--help" || first == "-h" || first == "--version";
+}
+
+int RunCommandLine(const std::vector<std::string>& args, std::ostream& out, std::ostream& err) {
+  StreamRedirect redirect(out, err);
+  if (!IsCommandLine(args)) {
+    std::cerr << "avatar-studio: no command given; run 'avatar-studio --help' for the commands.\n";
+    return kExitUsage;
+  }
+  return Dispatch(args);
+}
+
+int Main(int argc, char** argv, GuiLauncher gui) {
+  std::signal(SIGINT, OnSigint);
+  const std::vector<std::string> args(argv + 1, argv + argc);
+  if (IsCommandLine(args)) return Dispatch(args);
+  if (gui == nullptr) {
+    std::cerr << "avatar-studio: this build has no GUI (AVATAR_BUILD_GUI=OFF); run 'avatar-studio --help' for "
+                 "commands.\n";
+    return kExitUsage;
+  }
+  return gui(argc, argv, args);
+}
+
 }  // namespace avatar::app
-#endif

@@ -3,10 +3,9 @@
 // parses flags into XOptions and calls RunXImpl(options, ctx); tests call the Impl.
 
 #include <functional>
+#include <iostream>
 #include <string>
 #include <vector>
-
-#include <iostream>
 
 #include "core/util/options.h"
 #include "core/util/run_context.h"
@@ -81,11 +80,25 @@ bool ParseCommand(Options& options, const std::vector<std::string>& args, const 
 // Runs `body` and maps exceptions to exit codes, printing errors on stderr.
 int GuardedRun(const char* command, const std::function<int()>& body);
 
-// The entry point used by main(): dispatches to the GUI or a subcommand.
-int Main(int argc, char** argv);
-
-// GUI (defined in gui_launch.cc when the GUI is built).
+// Starts the studio (gui_launch.cc, linked into the executable only when the GUI is built).
+using GuiLauncher = int (*)(int argc, char** argv, const std::vector<std::string>& args);
 int RunGui(int argc, char** argv, const std::vector<std::string>& args);
+
+// The entry point main() calls: a command line with a command word (or --help/--version) runs
+// that command (RunCommandLine); anything else starts the studio through `gui`, or, when `gui` is
+// nullptr (a build without the GUI), says so and returns kExitUsage. Installs the SIGINT handler
+// that cancels ProcessContext().
+int Main(int argc, char** argv, GuiLauncher gui);
+
+// Runs one command line (the arguments after the program name) in this process, with everything
+// it prints on std::cout / std::cerr sent to `out` / `err` while it runs: the command word
+// dispatches to its RunX (which parses flags and calls RunXImpl), --help and --version print
+// here. Returns the exit code. A GUI invocation (no command word) is a usage error here. Tests
+// call this instead of spawning the executable.
+int RunCommandLine(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+
+// True when `args` name a command, help or the version (not a GUI start).
+bool IsCommandLine(const std::vector<std::string>& args);
 
 }  // namespace avatar::app
 

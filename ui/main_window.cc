@@ -1,6 +1,7 @@
 #include "ui/main_window.h"
 
 #include <QAction>
+#include <QCheckBox>
 #include <QApplication>
 #include <QCloseEvent>
 #include <QDockWidget>
@@ -24,8 +25,10 @@
 
 #include "core/io/image_io.h"
 #include "core/io/video_io.h"
+#include "core/pipeline/session_source.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
+#include "core/util/logging.h"
 #include "core/util/version.h"
 #include "ui/export_dialog.h"
 #include "ui/image_convert.h"
@@ -133,6 +136,12 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
     if (title == kReconstructTitle) {
       setFrameSource(built_);
       built_.reset();
+      if (measured_) {
+        estimates_ = measured_;
+        measured_.reset();
+        source_panel_->setQualityEstimates(estimates_);
+        emit qualityEstimatesChanged();
+      }
       QString done = tr("Reconstructed %1").arg(QFileInfo(portrait_path_).fileName());
       if (source_) {
         for (const std::string& w : source_->Warnings()) done += tr(". Warning: %1").arg(QString::fromStdString(w));
@@ -165,6 +174,7 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
   if (!restoreGeometry(settings.value(kGeometryKey).toByteArray())) resize(1280, 720);
   restoreState(settings.value(kStateKey).toByteArray());
   preview_->setAnalyzerFactory(DrivingAnalyzers(backendOptions()));
+  showCachedQualityEstimates();
 }
 
 MainWindow::~MainWindow() {
@@ -184,8 +194,14 @@ void MainWindow::createPanels() {
   source_dock->setFeatures(QDockWidget::DockWidgetMovable | QDockWidget::DockWidgetFloatable);
   addDockWidget(Qt::LeftDockWidgetArea, source_dock);
   connect(source_panel_, &SourcePanel::reconstructRequested, this, &MainWindow::reconstruct);
-  connect(source_panel_, &SourcePanel::presetChanged, this,
-          [this](const QString& preset) { preset_label_->setText(tr("Preset: %1").arg(preset)); });
+  connect(source_panel_, &SourcePanel::presetChanged, this, [this](const QString& preset) {
+    preset_label_->setText(tr("Preset: %1").arg(preset));
+    showCachedQualityEstimates();
+  });
+  connect(source_panel_->randomWeightsBox(), &QCheckBox::toggled, this, [this] { showCachedQualityEstimates(); });
+  connect(source_panel_, &SourcePanel::qualityChanged, this, [this](const QString& quality) {
+    if (source_) status_label_->setText(tr("Quality %1 applies from the next reconstruction (Ctrl+R)").arg(quality));
+  });
 
   auto* controls = new QWidget(this);
   auto* layout = new QVBoxLayout(controls);
@@ -346,7 +362,36 @@ BackendOptions MainWindow::backendOptions() const {
   o.preset = source_panel_->preset().toStdString();
   o.random_weights = source_panel_->randomWeights();
   o.renderer = source_panel_->morphablePreview() ? "morphable" : "neural";
+  o.checkpoint = checkpoint_.toStdString();
+  o.quality = source_panel_->quality().toStdString();
   return o;
+}
+
+void MainWindow::setCheckpoint(const QString& path) {
+  checkpoint_ = path;
+  showCachedQualityEstimates();
+}
+
+void MainWindow::showCachedQualityEstimates() {
+  const BackendOptions b = backendOptions();
+  SessionOptions so;
+  so.checkpoint = b.checkpoint;
+  so.random_weights = b.random_weights && b.checkpoint.empty();
+  so.config = b.preset;
+  so.data_dir = b.data_dir;
+  std::optional<QualityEstimates> cached;
+  try {
+    const std::filesystem::path cache = QualityCachePath(b.data_dir);
+    const std::filesystem::path ckpt = ResolveCheckpoint(so);
+    const int threads = QualityEstimateThreads();
+    cached = ckpt.empty() ? ReadCachedQualityEstimates(cache, "random:" + so.config + ":" + std::to_string(so.seed), threads)
+                          : ReadCachedQualityEstimatesForCheckpoint(cache, ckpt, threads);
+  } catch (const std::exception&) {
+    // No model found: the ladder says "not measured yet".
+  }
+  estimates_ = cached;
+  source_panel_->setQualityEstimates(estimates_);
+  emit qualityEstimatesChanged();
 }
 
 void MainWindow::showError(const QString& title, const QString& message) {
@@ -389,13 +434,39 @@ bool MainWindow::reconstruct() {
   const BackendOptions backend = backendOptions();
   preview_->setAnalyzerFactory(DrivingAnalyzers(backend));
   built_.reset();
+  measured_.reset();
   const std::string name = QFileInfo(portrait_path_).fileName().toStdString();
   return jobs_->start(kReconstructTitle, [this, portrait, backend, name](RunContext& ctx) {
-    // Runs on the job thread; built_ is read on the GUI thread only after `finished`.
+    // Runs on the job thread; built_ and measured_ are read on the GUI thread only after `finished`.
+    const std::filesystem::path cache = QualityCachePath(backend.data_dir);
+    std::shared_ptr<const Session> session;
+    bool measure = false;
+    if (backend.renderer == "neural" || backend.random_weights) {
+      try {
+        session = SharedSession(backend);
+        measure = !ReadCachedQualityEstimates(cache, session->Info().model_id, QualityEstimateThreads());
+      } catch (const Error&) {
+        session.reset();  // CreateFrameSource reports (or falls back from) a model that does not load.
+      }
+    }
     try {
+      RunContext::ProgressRange range(ctx, 0.0, measure ? 0.85 : 1.0);
       built_ = CreateFrameSource(portrait, backend, ctx);
     } catch (const InvalidInput& e) {
       throw InvalidInput(name + ": " + e.what());
+    }
+    if (session != nullptr && dynamic_cast<const SessionFrameSource*>(built_.get()) != nullptr) {
+      // The ladder's estimates: cached, or measured once on this machine (first use of the model).
+      RunContext::ProgressRange range(ctx, 0.85, 1.0);
+      RefineOptions refine;
+      refine.data_dir = backend.data_dir;
+      try {
+        measured_ = CachedOrMeasuredQualityEstimates(*session, cache, ctx, refine);
+      } catch (const Cancelled&) {
+        throw;
+      } catch (const Error& e) {
+        AVATAR_LOG(kWarning) << "could not measure the quality ladder: " << e.what();
+      }
     }
   });
 }

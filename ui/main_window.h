@@ -13,11 +13,13 @@
 
 #include <atomic>
 #include <memory>
+#include <optional>
 
 #include <opencv2/core.hpp>
 
 #include "core/pipeline/animate.h"
 #include "core/pipeline/frame_source.h"
+#include "core/pipeline/quality.h"
 
 class QAction;
 class QLabel;
@@ -66,6 +68,13 @@ class MainWindow : public QMainWindow {
   // Cancels the running job (reconstruction or export).
   void cancelJob();
 
+  // The neural model checkpoint to use ("" = the installed or bundled default).
+  void setCheckpoint(const QString& path);
+  QString checkpoint() const { return checkpoint_; }
+  // This machine's time estimates of the quality ladder for the current model (cached, or
+  // measured by the first reconstruction with the model); nullopt before that.
+  const std::optional<QualityEstimates>& qualityEstimates() const { return estimates_; }
+
   // Dialogs are on by default; tests switch them off so nothing blocks.
   void setDialogsEnabled(bool enabled) { dialogs_enabled_ = enabled; }
 
@@ -93,6 +102,8 @@ class MainWindow : public QMainWindow {
   void portraitLoaded(const QString& path);
   void portraitFailed(const QString& path, const QString& message);
   void reconstructionFinished();
+  // The ladder's estimates changed (read from the cache or measured).
+  void qualityEstimatesChanged();
   void reconstructionFailed(const QString& message);
   void driverLoaded(const QString& path);
   void driverFailed(const QString& path, const QString& message);
@@ -129,6 +140,8 @@ class MainWindow : public QMainWindow {
   void saveExpressionPreset();
   void loadExpressionPreset();
   BackendOptions backendOptions() const;
+  // Shows the cached estimates of the model the current options select (without loading it).
+  void showCachedQualityEstimates();
 
   Viewport* viewport_ = nullptr;
   SourcePanel* source_panel_ = nullptr;
@@ -168,6 +181,9 @@ class MainWindow : public QMainWindow {
   bool loading_driver_ = false;
   QString last_error_;
   bool dialogs_enabled_ = true;
+  QString checkpoint_;
+  std::optional<QualityEstimates> estimates_;
+  std::optional<QualityEstimates> measured_;  // Written by the reconstruction job.
 };
 
 // True if the file name looks like an image the studio opens (by extension).

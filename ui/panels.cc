@@ -87,10 +87,27 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
   auto* preset_label = new QLabel(tr("&Preset:"), this);
   preset_label->setBuddy(preset_);
   form->addRow(preset_label, preset_);
+  // The quality ladder (core/pipeline/quality.h), each entry with this machine's estimates.
+  quality_ = new QComboBox(this);
+  quality_->setObjectName(QStringLiteral("qualityLadder"));
+  quality_->setSizeAdjustPolicy(QComboBox::AdjustToContents);
+  for (const QualityPreset& p : QualityLadder()) quality_->addItem(QString::fromStdString(p.name), QString::fromStdString(p.name));
+  quality_->setToolTip(
+      tr("Quality preset: render size, samples, super-resolution and refinement steps on the photo, from instant to "
+         "best (paper = the published setting). Estimates are measured on this machine at first use. (Alt+Q)"));
+  quality_->setCurrentIndex(std::max(0, quality_->findData(QSettings().value("source/quality", "standard"))));
+  auto* quality_label = new QLabel(tr("&Quality:"), this);
+  quality_label->setBuddy(quality_);
+  form->addRow(quality_label, quality_);
   layout->addLayout(form);
+  setQualityEstimates(std::nullopt);
   connect(preset_, &QComboBox::currentIndexChanged, this, [this] {
     QSettings().setValue("source/preset", preset());
     emit presetChanged(preset());
+  });
+  connect(quality_, &QComboBox::currentIndexChanged, this, [this] {
+    QSettings().setValue("source/quality", quality());
+    emit qualityChanged(quality());
   });
 
   morphable_preview_ = new QCheckBox(tr("&Morphable preview instead of the neural avatar"), this);
@@ -141,6 +158,24 @@ void SourcePanel::redraw() {
 void SourcePanel::setStatus(const QString& text) { status_->setText(text); }
 QString SourcePanel::preset() const { return preset_->currentData().toString(); }
 void SourcePanel::setPreset(const QString& preset) { preset_->setCurrentIndex(std::max(0, preset_->findData(preset))); }
+QString SourcePanel::quality() const { return quality_->currentData().toString(); }
+void SourcePanel::setQuality(const QString& name) { quality_->setCurrentIndex(std::max(0, quality_->findData(name))); }
+
+void SourcePanel::setQualityEstimates(const std::optional<QualityEstimates>& estimates) {
+  ModelInfo model;
+  if (estimates) model.config_json = estimates->config_json;
+  const auto& ladder = QualityLadder();
+  for (int i = 0; i < quality_->count() && i < static_cast<int>(ladder.size()); ++i) {
+    const QualityPreset& p = ladder[static_cast<size_t>(i)];
+    const QualityEstimate* e = estimates ? estimates->Find(p.name) : nullptr;
+    quality_->setItemText(i, QStringLiteral("%1 \u2014 %2")
+                                 .arg(QString::fromStdString(p.name), QString::fromStdString(FormatQualityEstimate(e))));
+    quality_->setItemData(i,
+                          QString::fromStdString(p.summary + " (" + p.Describe(model) + ")"),
+                          Qt::ToolTipRole);
+  }
+}
+
 bool SourcePanel::randomWeights() const { return random_weights_->isChecked(); }
 bool SourcePanel::morphablePreview() const { return morphable_preview_->isChecked(); }
 

@@ -9,10 +9,12 @@
 #include <QWidget>
 
 #include <map>
+#include <optional>
 #include <vector>
 
 #include "core/pipeline/driving.h"
 #include "core/pipeline/frame_source.h"
+#include "core/pipeline/quality.h"
 
 class QCheckBox;
 class QComboBox;
@@ -34,6 +36,13 @@ class SourcePanel : public QWidget {
   void setStatus(const QString& text);
   QString preset() const;
   void setPreset(const QString& preset);
+  // The quality preset chosen in the ladder (a QualityLadder() name; persisted).
+  QString quality() const;
+  void setQuality(const QString& name);
+  // Shows each preset's estimated reconstruct and frame time beside its name ("not measured
+  // yet" for nullopt).
+  void setQualityEstimates(const std::optional<QualityEstimates>& estimates);
+  QComboBox* qualityBox() const { return quality_; }
   bool randomWeights() const;
   // The user chose the morphable preview instead of the neural avatar.
   bool morphablePreview() const;
@@ -44,12 +53,14 @@ class SourcePanel : public QWidget {
  signals:
   void reconstructRequested();
   void presetChanged(const QString& preset);
+  void qualityChanged(const QString& quality);
 
  private:
   void redraw();
   QLabel* thumbnail_ = nullptr;
   QLabel* status_ = nullptr;
   QComboBox* preset_ = nullptr;
+  QComboBox* quality_ = nullptr;
   QCheckBox* random_weights_ = nullptr;
   QCheckBox* morphable_preview_ = nullptr;
   QPushButton* reconstruct_ = nullptr;

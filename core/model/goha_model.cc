@@ -154,9 +154,13 @@ render::RenderOptions GohaModelImpl::RenderOptionsFor(int resolution, bool deter
 
 render::RenderOutput GohaModelImpl::Render(const torch::Tensor& planes, const render::Cameras& cameras, int resolution,
                                            bool deterministic, render::RenderProfile* profile) {
+  return RenderWith(planes, cameras, RenderOptionsFor(resolution, deterministic), profile);
+}
+
+render::RenderOutput GohaModelImpl::RenderWith(const torch::Tensor& planes, const render::Cameras& cameras,
+                                               render::RenderOptions options, render::RenderProfile* profile) {
   ++counters_.renders;
   const render::PointDecoder decode = [this](const torch::Tensor& f) { return decoder->forward(f); };
-  render::RenderOptions options = RenderOptionsFor(resolution, deterministic);
   if (inference_skips) options.EnableInferenceSkips();
   return render::RenderTriplanes(planes, decode, cameras, options, c10::nullopt, profile);
 }

@@ -114,6 +114,10 @@ class GohaModelImpl : public torch::nn::Module {
   // Volume render of planes [B,3,C,P,P] with this model's decoder; `resolution` 0 = config.render_size.
   render::RenderOutput Render(const torch::Tensor& planes, const render::Cameras& cameras, int resolution = 0,
                               bool deterministic = true, render::RenderProfile* profile = nullptr);
+  // The same with explicit options (e.g. RenderOptionsFor with other sample counts); the skips
+  // below apply as in Render.
+  render::RenderOutput RenderWith(const torch::Tensor& planes, const render::Cameras& cameras,
+                                  render::RenderOptions options, render::RenderProfile* profile = nullptr);
   // Render options of this config at `resolution` (0 = config.render_size).
   render::RenderOptions RenderOptionsFor(int resolution = 0, bool deterministic = true) const;
   // Render() turns on RenderOptions::EnableInferenceSkips (early termination, missed rays) when

@@ -4,6 +4,7 @@
 
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
+#include "core/io/video_io.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -97,6 +98,10 @@ void AnimateOptions::Validate() const {
   e.output = output;
   e.format = format;
   e.Validate();
+  // Checked here, before the portrait's analysis, rather than when the encoder opens.
+  AVATAR_CHECK_OPTION(e.ResolvedFormat() != "mp4" || (width % 2 == 0 && height % 2 == 0))
+      << "MP4 (H.264) export needs an even --width and --height, got " << width << "x" << height
+      << "; use an even size or export PNG frames (-o FOLDER)";
 }
 
 AnimationPlan AnimateOptions::Plan() const {
@@ -113,6 +118,16 @@ AnimationPlan AnimateOptions::Plan() const {
 
 AnimateResult RunAnimation(const AnimateOptions& options, RunContext& ctx) {
   options.Validate();
+  std::unique_ptr<Driver> driver;
+  if (!options.driver.empty()) {
+    // A bad driver is refused before the portrait's (slow) analysis: keyframes (and a file that
+    // is neither keyframes nor a video) are opened now; a video is opened once to check it.
+    if (IsVideoPath(options.driver)) {
+      VideoReader check(options.driver);
+    } else {
+      driver = OpenDriver(options.driver, nullptr, options.driving, ctx);
+    }
+  }
   ctx.Report("load portrait", 0.0, options.source);
   const cv::Mat portrait = LoadImageBgr(options.source);
   std::shared_ptr<const FrameSource> source;
@@ -124,11 +139,11 @@ AnimateResult RunAnimation(const AnimateOptions& options, RunContext& ctx) {
       throw InvalidInput("portrait '" + options.source + "': " + e.what());
     }
   }
-  std::unique_ptr<Driver> driver;
-  if (!options.driver.empty()) {
+  if (!options.driver.empty() && driver == nullptr) {
     RunContext::ProgressRange range(ctx, 0.1, 0.15);
     driver = OpenDriver(options.driver, DrivingAnalyzers(options.backend), options.driving, ctx);
   }
+  if (driver != nullptr) driver->CheckControls(source->ExpressionControls());
   ExportOptions out;
   out.output = options.output;
   out.format = options.format;

@@ -508,9 +508,9 @@ class Builder {
       morphable::Beta beta = fit.beta;
       std::string expression = "photo";
       if (v > 0) {
-        render::OrbitPose pose;
+        render::ViewPose pose;  // Camera yaw in [-35, 35], camera pitch (= -head pitch) in [-20, 20].
         pose.yaw = -35.0 + 70.0 * unit(rng);
-        pose.pitch = -20.0 + 40.0 * unit(rng);
+        pose.pitch = -(-20.0 + 40.0 * unit(rng));
         label = morphable::LabelFromTensor(render::LabelsFromCameras(
             {render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)}));
         const double kind = unit(rng);

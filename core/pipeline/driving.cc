@@ -67,7 +67,7 @@ double NumberOr(const nlohmann::json& j, const char* key, double fallback, const
 
 }  // namespace
 
-KeyframeDriver::KeyframeDriver(const fs::path& path) {
+KeyframeDriver::KeyframeDriver(const fs::path& path) : path_(path) {
   const std::string text = ReadFileBytes(path);
   nlohmann::json j;
   try {
@@ -95,13 +95,36 @@ KeyframeDriver::KeyframeDriver(const fs::path& path) {
       for (auto it = k["expression"].begin(); it != k["expression"].end(); ++it) {
         AVATAR_CHECK_INPUT(it->is_number())
             << "keyframes '" << path.string() << "': expression '" << it.key() << "' must be a number";
-        key.expression[it.key()] = it->get<float>();
+        const double value = it->get<double>();
+        AVATAR_CHECK_INPUT(std::isfinite(value) && std::abs(value) <= 1e3)
+            << "keyframes '" << path.string() << "': expression '" << it.key() << "' is " << value
+            << "; controls are weights of about 0..1 (at most 1000 in magnitude)";
+        key.expression[it.key()] = static_cast<float>(value);
       }
     }
     keys_.push_back(std::move(key));
   }
   std::stable_sort(keys_.begin(), keys_.end(), [](const Key& a, const Key& b) { return a.time < b.time; });
-  Init(NumberOr(j, "duration", keys_.back().time, path));
+  const double duration = NumberOr(j, "duration", keys_.back().time, path);
+  try {
+    Init(duration);
+  } catch (const InvalidInput& e) {
+    throw InvalidInput("keyframes '" + path.string() + "': " + e.what());
+  }
+}
+
+void KeyframeDriver::CheckControls(const std::vector<std::string>& known) const {
+  for (const Key& key : keys_) {
+    for (const auto& [name, value] : key.expression) {
+      (void)value;
+      if (std::find(known.begin(), known.end(), name) != known.end()) continue;
+      std::string list;
+      for (const auto& k : known) list += (list.empty() ? "" : ", ") + k;
+      const std::string where = path_.empty() ? std::string("keyframes") : "keyframes '" + path_.string() + "'";
+      throw InvalidInput(where + ": unknown expression control '" + name + "' at " + std::to_string(key.time) +
+                         " s; known controls: " + (list.empty() ? std::string("none") : list));
+    }
+  }
 }
 
 KeyframeDriver::KeyframeDriver(std::vector<Key> keys, double fps, double duration) : keys_(std::move(keys)), fps_(fps) {

@@ -102,6 +102,9 @@ class Driver {
   virtual bool Measured() const { return true; }
   // Reads the next sample; false at the end.
   virtual bool Next(DrivingSample& sample, RunContext& ctx) = 0;
+  // Throws InvalidInput (naming the driver's file) when it names an expression control that is
+  // not in `known` (a source's ExpressionControls()); videos carry measured coefficients only.
+  virtual void CheckControls(const std::vector<std::string>& known) const { (void)known; }
 };
 
 // Keyframes JSON:
@@ -125,9 +128,11 @@ class KeyframeDriver : public Driver {
   bool Next(DrivingSample& sample, RunContext& ctx) override;
   // The interpolated sample at `time` seconds.
   DrivingSample At(double time) const;
+  void CheckControls(const std::vector<std::string>& known) const override;
 
  private:
   void Init(double duration);
+  std::filesystem::path path_;  // "" for keys made in code
   std::vector<Key> keys_;
   double fps_ = 25.0;
   int64_t frames_ = 0;

@@ -353,6 +353,18 @@ cv::Mat ContactSheet(const std::vector<std::vector<cv::Mat>>& rows, const std::v
 
 }  // namespace
 
+train::ImageMetrics EvaluationImageMetrics(const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& mask,
+                                           const PerceptualLoss* perceptual) {
+  if (perceptual == nullptr) return train::ComputeImageMetrics(a, b, mask);
+  // MobileNetV2 needs >= 32 px: smaller images (and masks) are upsampled for that term only.
+  auto distance = [perceptual](const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& m) {
+    if (x.size(2) >= 32) return perceptual->Distance(x, y, m);
+    return perceptual->Distance(ResizeBilinear(x, 32, 32), ResizeBilinear(y, 32, 32),
+                                m.defined() ? ResizeBilinear(m, 32, 32) : m);
+  };
+  return train::ComputeImageMetrics(a, b, mask, distance);
+}
+
 std::vector<int64_t> ChooseEvaluationPairs(const train::TrainDataset& dataset, int max_pairs) {
   const int64_t n = dataset.size();
   std::vector<int64_t> all(n);
@@ -427,12 +439,6 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     perceptual = std::make_unique<PerceptualLoss>(po);
     perceptual->To(device);
   }
-  // MobileNetV2 needs >= 32 px: smaller images (and masks) are upsampled for that term only.
-  auto perceptual_fn = [&](const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& m) {
-    if (a.size(2) >= 32) return perceptual->Distance(a, b, m);
-    return perceptual->Distance(ResizeBilinear(a, 32, 32), ResizeBilinear(b, 32, 32),
-                                m.defined() ? ResizeBilinear(m, 32, 32) : m);
-  };
   std::unique_ptr<face::FaceMetrics> face_metrics;
   if (options.face_metrics) {
     face::FaceMetricsOptions fo = options.face;
@@ -534,13 +540,8 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
       const bool is_sr = r == 4 || r == 5;
       const torch::Tensor tgt = is_sr ? train::ResizeTo(target_full, config.sr_size) : target_r;
       const torch::Tensor mask = is_sr ? train::ResizeTo(b.target_matte, config.sr_size) : matte_r;
-      if (perceptual) {
-        full_m[r] = train::ComputeImageMetrics(renders[r], tgt, {}, perceptual_fn);
-        masked_m[r] = train::ComputeImageMetrics(renders[r], tgt, mask, perceptual_fn);
-      } else {
-        full_m[r] = train::ComputeImageMetrics(renders[r], tgt);
-        masked_m[r] = train::ComputeImageMetrics(renders[r], tgt, mask);
-      }
+      full_m[r] = EvaluationImageMetrics(renders[r], tgt, {}, perceptual.get());
+      masked_m[r] = EvaluationImageMetrics(renders[r], tgt, mask, perceptual.get());
     }
 
     for (int64_t j = 0; j < bn; ++j) {

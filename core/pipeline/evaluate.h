@@ -31,6 +31,7 @@
 
 #include "core/face/face_metrics.h"
 #include "core/train/dataset.h"
+#include "core/train/metrics.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
@@ -113,6 +114,15 @@ struct EvaluateReport {
 // else equal shares per pair kind (a kind with fewer pairs gives its leftover share to the
 // others), evenly spaced within each kind; sorted.
 std::vector<int64_t> ChooseEvaluationPairs(const train::TrainDataset& dataset, int max_pairs);
+
+class PerceptualLoss;  // core/train/perceptual.h
+
+// The image metrics of one comparison as the evaluation computes them (core/train/metrics.h):
+// PSNR, SSIM, L1 and, with `perceptual` (may be null), the perceptual distance; images under
+// 32 px are upsampled bilinearly for the perceptual term only. a, b [B,3,H,W] in [-1,1]; mask
+// undefined (the full image) or [B,1,H,W] in [0,1]. Also used by `bench accuracy`.
+train::ImageMetrics EvaluationImageMetrics(const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& mask,
+                                           const PerceptualLoss* perceptual);
 
 // Runs the evaluation and writes the outputs. Throws InvalidOptions; Io naming a missing
 // checkpoint, data folder or unwritable output folder; ModelLoad for a bad checkpoint (naming

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "core/io/atomic_file.h"
 #include "core/io/video_io.h"
 #include "core/util/error.h"
 
@@ -54,6 +55,7 @@ class Mp4Sink : public FrameSink {
     // H.264 wants even sizes; odd sizes are refused early rather than silently cropped.
     AVATAR_CHECK_INPUT(width % 2 == 0 && height % 2 == 0)
         << "MP4 export needs an even width and height, got " << width << "x" << height;
+    CleanStaleWorkFiles(target_);
     work_ = WorkPath(target_, ".mp4");
     writer_.open(work_.string(), cv::CAP_FFMPEG, cv::VideoWriter::fourcc('a', 'v', 'c', '1'), options.fps,
                  cv::Size(width, height));
@@ -79,6 +81,20 @@ class Mp4Sink : public FrameSink {
     if (frames_ == 0 || !fs::exists(work_, ec) || fs::file_size(work_, ec) == 0) {
       Discard();
       throw Io("the export to '" + target_.string() + "' produced no video (no frames or disk full)");
+    }
+    // OpenCV's FFmpeg writer reports no write errors (a full disk gives a truncated file that
+    // still "succeeds"), so the finished work file is opened again and its frames counted.
+    {
+      cv::VideoCapture check(work_.string(), cv::CAP_FFMPEG);
+      const double counted = check.isOpened() ? check.get(cv::CAP_PROP_FRAME_COUNT) : -1.0;
+      if (std::llround(counted) != frames_) {
+        Discard();
+        throw Io("writing the video '" + target_.string() + "' failed (" +
+                 (counted < 0 ? std::string("the file cannot be read back") :
+                                "it holds " + std::to_string(std::llround(counted)) + " of " +
+                                    std::to_string(frames_) + " frames") +
+                 "); check free disk space");
+      }
     }
     try {
       if (!audio_.empty() && ProbeHasAudio(audio_)) {
@@ -147,6 +163,7 @@ class PngSequenceSink : public FrameSink {
   PngSequenceSink(const ExportOptions& options, int width, int height)
       : target_(FolderTarget(options.output)), width_(width), height_(height) {
     RequireParentFolder(target_);
+    CleanStaleWorkFiles(target_);
     std::error_code ec;
     if (fs::exists(target_, ec) && !fs::is_directory(target_, ec)) {
       throw Io("cannot export a PNG sequence to '" + target_.string() + "': a file with that name exists");

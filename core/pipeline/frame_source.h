@@ -17,22 +17,16 @@
 #include <opencv2/core.hpp>
 
 #include "core/pipeline/expression.h"
+#include "core/render/view_pose.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
 
-// The head pose a frame shows, relative to the frontal view. CameraForView turns it into the
-// camera that renders it; that is the one pose conversion of a frame (see below).
-struct ViewPose {
-  double yaw = 0.0;    // Degrees; > 0 turns the head to the image's left.
-  double pitch = 0.0;  // Degrees; > 0 tilts the head up.
-  double roll = 0.0;   // Degrees; > 0 rolls the head clockwise in the image.
-  double zoom = 1.0;   // Magnification; 1 = the default framing.
-
-  bool operator==(const ViewPose& o) const {
-    return yaw == o.yaw && pitch == o.pitch && roll == o.roll && zoom == o.zoom;
-  }
-};
+// The head pose a frame shows: the project's one pose type, render::ViewPose
+// (core/render/view_pose.h: yaw, pitch, roll, zoom). render::CameraForView turns it into the
+// camera that renders it; that is the one pose conversion of a frame.
+using render::CameraLabel25;
+using render::ViewPose;
 
 // The expression of a frame: core/pipeline's one expression type (expression.h), under the
 // name the frame-source code has always used.
@@ -110,32 +104,6 @@ class PortraitFrameSource : public FrameSource {
  private:
   cv::Mat portrait_;
 };
-
-// ----------------------------------------------------------------------------- pose -> camera
-// An EG3D camera label: row-major cam2world 4x4 + row-major normalised intrinsics 3x3 (the
-// convention of core/render/camera.h and of the morphable fit's camera C_s).
-using CameraLabel25 = std::array<float, 25>;
-
-// Head rotation of a view pose, as a matrix applied to world points (about the origin):
-// yaw first (> 0: the nose towards the image's left), then pitch about the world x axis
-// (> 0: up), then roll about the viewing axis (> 0: clockwise in the image). Zoom is ignored.
-cv::Matx33d HeadRotation(const ViewPose& pose);
-// Inverse of HeadRotation for the angles (zoom = 1). Angles in (-180, 180], pitch in [-90, 90].
-ViewPose PoseFromRotation(const cv::Matx33d& rotation);
-// The head pose a camera sees: its world->camera rotation relative to the frontal camera's.
-// Throws InvalidInput for a label that is not a rigid camera.
-ViewPose PoseOfCamera(const CameraLabel25& camera);
-
-// THE pose conversion of a frame: the camera that shows the still head of a portrait
-// photographed by `source_camera` (C_s) at head pose `view`. Its rotation is the frontal
-// camera's turned by HeadRotation(view) (turning the head in front of a camera and orbiting
-// the camera around the still head are the same picture); the head's origin stays where C_s
-// sees it (the camera translation of C_s, divided by the zoom so the head grows in place), and
-// the intrinsics are those of C_s. So CameraForView(PoseOfCamera(C_s), C_s) is C_s itself: the
-// source view lines up with the photo, and every other view turns about the head from there.
-// Every FrameSource renders request.view through this function and nothing else. Throws
-// InvalidOptions for non-finite angles or a zoom outside 0.1..10, InvalidInput for a bad label.
-CameraLabel25 CameraForView(const ViewPose& view, const CameraLabel25& source_camera);
 
 // Throws InvalidOptions unless 16 <= width, height <= 4096.
 void ValidateFrameSize(int width, int height);

@@ -12,7 +12,7 @@ namespace avatar {
 // CameraLabel25 and morphable::CameraLabel are the same 25 floats.
 static_assert(std::is_same_v<CameraLabel25, morphable::CameraLabel>);
 
-ViewPose PoseOfFit(const morphable::FitResult& fit) { return PoseOfCamera(fit.camera); }
+ViewPose PoseOfFit(const morphable::FitResult& fit) { return render::PoseOfCamera(fit.camera); }
 
 MorphablePreviewSource::MorphablePreviewSource(const morphable::MorphableModel& model, morphable::FitResult fit,
                                                morphable::Texture texture, SourceOverlay overlay, std::string label)

@@ -14,6 +14,7 @@
 #include "core/io/resources.h"
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
+#include "core/morphable/camera_label.h"
 #include "core/pipeline/avatar_file.h"
 #include "core/pipeline/avatar_state.h"
 #include "core/pipeline/image_tensor.h"
@@ -29,23 +30,10 @@ namespace {
 
 std::mutex g_seed_mutex;  // torch::manual_seed is process-global
 
+// The label must have passed render::CheckCameraLabel.
 render::Cameras CamerasFromLabel(const std::array<float, 25>& label) {
-  for (float v : label) AVATAR_CHECK_INPUT(std::isfinite(v)) << "camera label has non-finite values";
   torch::Tensor t = torch::from_blob(const_cast<float*>(label.data()), {1, 25}, torch::kFloat32).clone();
   return render::CamerasFromLabels(t);
-}
-
-// Throws InvalidInput unless the cam2world rotation of `label` is orthonormal (a rigid camera).
-void CheckRigidCamera(const std::array<float, 25>& label) {
-  double worst = 0.0;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) {
-      double dot = 0.0;
-      for (int r = 0; r < 3; ++r) dot += static_cast<double>(label[r * 4 + i]) * label[r * 4 + j];
-      worst = std::max(worst, std::abs(dot - (i == j ? 1.0 : 0.0)));
-    }
-  }
-  AVATAR_CHECK_INPUT(worst < 1e-3) << "camera label: the cam2world rotation is not orthonormal";
 }
 
 }  // namespace
@@ -79,6 +67,15 @@ void SessionOptions::Validate() const {
   AVATAR_CHECK_OPTION(seed >= 0) << "--seed must be >= 0, got " << seed;
   AVATAR_CHECK_OPTION(expression_cache >= 1 && expression_cache <= 1024)
       << "--expression-cache must be 1..1024, got " << expression_cache;
+}
+
+void RenderSettings::Validate() const {
+  AVATAR_CHECK_OPTION(resolution == 0 || (resolution >= 4 && resolution <= 1024))
+      << "render resolution must be 0 (the model's) or 4..1024, got " << resolution;
+  AVATAR_CHECK_OPTION(num_coarse == 0 || (num_coarse >= 2 && num_coarse <= 512))
+      << "coarse samples per ray must be 0 (the model's) or 2..512, got " << num_coarse;
+  AVATAR_CHECK_OPTION(num_importance >= -1 && num_importance <= 512)
+      << "importance samples per ray must be -1 (the model's), 0 (none) or 1..512, got " << num_importance;
 }
 
 cv::Mat Avatar::SourceImage() const { return state_ ? state_->source.clone() : cv::Mat(); }
@@ -226,6 +223,7 @@ Avatar Session::ReconstructFromAnalysis(const face::AlignedPortrait& portrait, c
     const torch::Tensor source = ImageToTensor(portrait.image, s, "aligned portrait");
     const torch::Tensor matte = MaskToTensor(portrait.matte, s, 1.0f, "matte");
     const torch::Tensor eye_mouth = MaskToTensor(portrait.eye_mouth_mask, s, 0.0f, "eye/mouth mask");
+    render::CheckCameraLabel(fit.camera);
     const render::Cameras cameras = CamerasFromLabel(fit.camera);
     auto state = std::make_shared<AvatarState>();
     state->config = c;
@@ -258,26 +256,22 @@ Avatar Session::Reconstruct(const cv::Mat& bgr, RunContext& ctx) const {
   return ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
 }
 
-Frame Session::Animate(const Avatar& avatar, const Expression& expression, const View& view, Preset preset,
+Frame Session::Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, Preset preset,
                        RunContext* ctx) const {
-  render::OrbitPose pose;
-  pose.yaw = view.yaw;
-  pose.pitch = view.pitch;
-  pose.roll = view.roll;
-  pose.radius = view.radius;
-  pose.Validate();
-  std::array<float, 25> label{};
-  {
-    torch::InferenceMode inference;
-    const render::Cameras camera{render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
-    const torch::Tensor t = render::LabelsFromCameras(camera).reshape({25}).contiguous();
-    std::copy(t.data_ptr<float>(), t.data_ptr<float>() + 25, label.begin());
-  }
-  return Animate(avatar, expression, label, preset, ctx);
+  return Animate(avatar, expression, render::CameraForView(view, morphable::FrontalLabel()), preset, ctx);
 }
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
                        Preset preset, RunContext* ctx) const {
+  RenderSettings settings;
+  if (preset == Preset::kPreview) settings.resolution = std::min(64, impl_->model->config().render_size);
+  settings.super_resolution = preset == Preset::kFinal;
+  return Animate(avatar, expression, camera, settings, ctx);
+}
+
+Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
+                       const RenderSettings& settings, RunContext* ctx) const {
+  settings.Validate();
   AVATAR_CHECK_INPUT(avatar.valid()) << "Animate needs a reconstructed or loaded avatar";
   const AvatarState& state = *avatar.state_;
   AVATAR_CHECK_INPUT(state.model_id == impl_->info.model_id)
@@ -285,24 +279,36 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
       << "'; reconstruct it again with this model";
   try {
     torch::InferenceMode inference;
-    const render::Cameras cameras = CamerasFromLabel(camera);  // Throws InvalidInput for a bad label.
-    CheckRigidCamera(camera);
+    render::CheckCameraLabel(camera);  // Throws InvalidInput for a label that is not a rigid camera.
+    const render::Cameras cameras = CamerasFromLabel(camera);
     GohaModel& model = impl_->model;
     const ModelConfig& c = model->config();
     if (ctx != nullptr) ctx->ThrowIfCancelled();
     const torch::Tensor planes = impl_->PlanesFor(state, expression, ctx);
     if (ctx != nullptr) ctx->Report("animate", 0.3, "volume render");
-    const int resolution = preset == Preset::kPreview ? std::min(64, c.render_size) : c.render_size;
-    const render::RenderOutput out = model->Render(planes, cameras, resolution);
+    const int resolution = settings.resolution > 0 ? settings.resolution : c.render_size;
+    render::RenderOptions ro = model->RenderOptionsFor(resolution);
+    if (settings.num_coarse > 0) ro.num_coarse = settings.num_coarse;
+    if (settings.num_importance >= 0) ro.num_importance = settings.num_importance;
+    const render::RenderOutput out = model->RenderWith(planes, cameras, ro);
     Frame frame;
     frame.render_size = resolution;
     // Random weights are a plumbing check of every module, the SR included.
     const bool run_sr = impl_->info.sr_trained || impl_->info.origin == "random";
-    if (preset == Preset::kFinal && run_sr) {
+    if (settings.super_resolution && run_sr) {
       if (ctx != nullptr) ctx->Report("animate", 0.7, "super-resolution");
-      frame.bgr = TensorToBgr(model->SuperResolve(out.rgb));
+      // The SR network takes renders of the model's render size.
+      const torch::Tensor sr_input =
+          resolution == c.render_size
+              ? out.rgb
+              : torch::nn::functional::interpolate(
+                    out.rgb, torch::nn::functional::InterpolateFuncOptions()
+                                 .size(std::vector<int64_t>{c.render_size, c.render_size})
+                                 .mode(torch::kBilinear)
+                                 .align_corners(false));
+      frame.bgr = TensorToBgr(model->SuperResolve(sr_input));
       frame.super_resolved = true;
-    } else if (preset == Preset::kFinal) {
+    } else if (settings.super_resolution) {
       // Stage-I weights: the SR module is still at its initialisation, so its output would be
       // noise. Bicubic upsampling keeps the frame honest at the requested size.
       const torch::Tensor up = torch::nn::functional::interpolate(

@@ -1,9 +1,10 @@
 #pragma once
-// The Session: the one door through which the GUI and the CLI use the GOHA network.
+// The Session: the one door through which the studio and the CLI's product commands use the GOHA
+// network (the developer tools train, inspect and bench work on core/model directly).
 //
 //   Session session(options);                      // loads the model (or random weights on request)
 //   Avatar avatar = session.Reconstruct(bgr, ctx); // face analysis, fit, T_c and T_p (cached in the avatar)
-//   Frame f = session.Animate(avatar, {{{"jawOpen", 0.6f}}}, View{20, 5}, Preset::kPreview);
+//   Frame f = session.Animate(avatar, {{{"jawOpen", 0.6f}}}, ViewPose{20, -5}, Preset::kPreview);
 //   Frame g = session.Animate(avatar, expression, CameraForView(pose, avatar.SourceCamera()), preset);
 //
 // Expressions (expression.h) are morphable expression coefficients relative to the portrait's
@@ -34,6 +35,7 @@
 
 #include "core/face/face_types.h"
 #include "core/pipeline/expression.h"
+#include "core/render/view_pose.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
@@ -60,15 +62,8 @@ using ExpressionSourceLoader = std::shared_ptr<const ExpressionImageSource> (*)(
 // Registers the loader of a Kind() (call once at start-up, e.g. from a static initialiser). Returns true.
 bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader);
 
-// Camera looking at the world origin from an orbit (degrees; EG3D conventions, render::OrbitPose
-// in core/render/camera.h, with the default intrinsics). For `render` and benchmarks; frame
-// sources pass the camera of a head pose instead (CameraForView, frame_source.h).
-struct View {
-  double yaw = 0.0;     // positive: camera moves towards the subject's left (+x)
-  double pitch = 0.0;   // positive: camera above, looking down; |pitch| < 90
-  double roll = 0.0;    // about the viewing axis
-  double radius = 2.7;  // distance to the look-at point
-};
+// The project's one pose type (core/render/view_pose.h).
+using render::ViewPose;
 
 enum class Preset {
   kPreview,   // small render (min(64, render_size)), no super-resolution: interactive
@@ -88,6 +83,17 @@ struct Frame {
   // kFinal with a model whose super-resolution is untrained (stage-I weights): the render was
   // upsampled bicubically to sr_size instead (see ModelInfo::sr_trained).
   bool upsampled = false;
+};
+
+// Explicit settings of one frame's render. The quality ladder (quality.h) resolves its presets
+// into these; each Preset is one of them (see Animate).
+struct RenderSettings {
+  int resolution = 0;             // side of the volume render (0 = the model's render size)
+  int num_coarse = 0;             // stratified samples per ray (0 = the model's)
+  int num_importance = -1;        // importance samples per ray (-1 = the model's; 0 = none)
+  bool super_resolution = false;  // output at sr_size: the SR network when trained (or random weights), else bicubic
+  // Throws InvalidOptions (resolution outside 0 or 4..1024, coarse outside 0 or 2..512, importance outside -1..512).
+  void Validate() const;
 };
 
 struct SessionOptions {
@@ -205,15 +211,21 @@ class Session {
   // MissingData (face models not installed), Cancelled.
   Avatar Reconstruct(const cv::Mat& bgr, RunContext& ctx) const;
 
-  // One frame seen by the orbit camera `view`. Throws InvalidInput (invalid avatar, unknown
-  // control, wrong coefficient count), InvalidOptions (bad view), Cancelled.
-  Frame Animate(const Avatar& avatar, const Expression& expression, const View& view, Preset preset,
+  // One frame at pose `view` about the frontal camera: CameraForView(view, C_front), a camera on a
+  // sphere of radius 2.7 / zoom looking at the origin (for `render` and benchmarks; frame sources
+  // pass CameraForView(pose, avatar.SourceCamera()) instead). Throws InvalidInput (invalid avatar,
+  // unknown control, wrong coefficient count), InvalidOptions (bad pose), Cancelled.
+  Frame Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, Preset preset,
                 RunContext* ctx = nullptr) const;
   // One frame seen by `camera`, an EG3D label (25 floats: cam2world + normalised intrinsics),
   // e.g. CameraForView(pose, avatar.SourceCamera()); the avatar's SourceCamera() renders the
   // source view. Throws InvalidInput (as above, or a label that is not a rigid camera), Cancelled.
   Frame Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
                 Preset preset, RunContext* ctx = nullptr) const;
+  // The same with explicit render settings (kPreview = {min(64, render size)}, kStandard = {},
+  // kFinal = {super_resolution}). Also throws InvalidOptions for bad settings.
+  Frame Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
+                const RenderSettings& settings, RunContext* ctx = nullptr) const;
 
   // Avatar files (.avatar, format in avatar_file.h): planes, camera, source image, expression
   // source, model id. Save throws Io; Load throws Io / ModelLoad (corrupt file, other model or config).

@@ -4,6 +4,7 @@
 // weights when the user asked for those.
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "core/pipeline/frame_source.h"
@@ -30,6 +31,11 @@ class SessionFrameSource : public FrameSource {
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
   // The camera a view pose is rendered from: CameraForView(pose, avatar.SourceCamera()).
   CameraLabel25 Camera(const ViewPose& pose) const;
+  // Frames render with these settings (a quality preset, quality.h) instead of the default
+  // (super-resolution when the model's SR is trained). Call before sharing the source.
+  void SetRenderSettings(const RenderSettings& settings);
+  // The rendered avatar (e.g. to read its RefinementInfo).
+  const Avatar& avatar() const { return avatar_; }
 
  private:
   std::shared_ptr<const Session> session_;
@@ -39,6 +45,7 @@ class SessionFrameSource : public FrameSource {
   SourceOverlay overlay_;
   std::string label_;
   bool sr_trained_ = false;
+  std::optional<RenderSettings> settings_;
 };
 
 // The label of random-weight frames.

@@ -9,6 +9,8 @@
 #include "core/io/data_paths.h"
 #include "core/morphable/morphable.h"
 #include "core/pipeline/morphable_preview.h"
+#include "core/pipeline/quality.h"
+#include "core/pipeline/refine.h"
 #include "core/pipeline/session.h"
 #include "core/pipeline/session_source.h"
 #include "core/pipeline/source_analysis.h"
@@ -65,13 +67,25 @@ std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analys
 std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, const BackendOptions& options,
                                                 std::shared_ptr<const Session> session, RunContext& ctx) {
   ctx.Report("reconstruct the neural avatar", 0.7);
+  const QualityPreset* quality = options.quality.empty() ? nullptr : &QualityPresetByName(options.quality);
+  RefineOptions refine;
+  refine.data_dir = options.data_dir;
+  if (quality != nullptr) refine = quality->Refine(refine);
+  if (quality == nullptr) refine.steps = 0;
   Avatar avatar;
   {
-    RunContext::ProgressRange range(ctx, 0.7, 1.0);
+    RunContext::ProgressRange range(ctx, 0.7, refine.Enabled() ? 0.75 : 1.0);
     avatar = session->ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
   }
+  if (refine.Enabled()) {
+    // The preset's refinement of the planes on the photo (progress "refine", step k/N; cancellable).
+    RunContext::ProgressRange range(ctx, 0.75, 1.0);
+    avatar = RefineAvatar(*session, avatar, analysis, refine, ctx).avatar;
+  }
+  const ModelInfo info = session->Info();
   auto source = std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
                                                      analysis.overlay);
+  if (quality != nullptr) source->SetRenderSettings(quality->Render(info));
   source->SetWarnings(analysis.warnings);
   return source;
 }
@@ -100,6 +114,7 @@ void BackendOptions::Validate() const {
       << "--renderer must be neural or morphable, got '" << renderer << "'";
   AVATAR_CHECK_OPTION(preset == "lite" || preset == "paper")
       << "--preset must be lite or paper, got '" << preset << "'";
+  if (!quality.empty()) QualityPresetByName(quality);
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,

@@ -32,6 +32,9 @@ struct BackendOptions {
   bool random_weights = false;
   // Folder with the installed models ("" = AVATAR_DATA_DIR or ~/.cache/avatar-studio).
   std::string data_dir;
+  // Quality preset of the neural avatar (quality.h: its render settings and refinement); "" =
+  // the one-shot planes rendered at the model's size (SR when trained).
+  std::string quality;
 
   template <typename V>
   void Visit(V&& v) {
@@ -41,8 +44,9 @@ struct BackendOptions {
     v("preset", preset, "Network configuration of --random-weights: lite or paper");
     v("random_weights", random_weights,
       "Render with the untrained network's random weights (plumbing check; not a result)");
+    v("quality", quality, "Quality preset: instant, preview, standard, fine, best or paper (\"\" = standard frames, SR when trained)");
   }
-  // Throws InvalidOptions for an unknown preset.
+  // Throws InvalidOptions for an unknown preset or quality.
   void Validate() const;
 };
 

@@ -8,8 +8,6 @@ namespace avatar::render {
 
 namespace {
 
-constexpr double kDegToRad = M_PI / 180.0;
-
 torch::Tensor Normalize(const torch::Tensor& v) { return v / v.norm(2, -1, true); }
 
 }  // namespace
@@ -109,27 +107,13 @@ torch::Tensor LookAtCam2World(const torch::Tensor& eye, const torch::Tensor& tar
   return m;
 }
 
-void OrbitPose::Validate() const {
-  for (double v : {yaw, pitch, roll, radius, target_x, target_y, target_z}) {
-    AVATAR_CHECK_OPTION(std::isfinite(v)) << "orbit pose values must be finite";
-  }
-  AVATAR_CHECK_OPTION(radius > 0.0) << "--radius must be > 0, got " << radius;
-  AVATAR_CHECK_OPTION(std::abs(pitch) < 90.0) << "--pitch must be within (-90, 90) degrees, got " << pitch;
-}
-
-torch::Tensor OrbitCam2World(const OrbitPose& pose, const torch::TensorOptions& options) {
-  pose.Validate();
-  const double yaw = pose.yaw * kDegToRad;
-  const double pitch = pose.pitch * kDegToRad;
-  const auto f64 = torch::TensorOptions().dtype(torch::kFloat64);
-  const torch::Tensor target = torch::tensor({pose.target_x, pose.target_y, pose.target_z}, f64).view({1, 3});
-  const torch::Tensor offset =
-      torch::tensor({std::sin(yaw) * std::cos(pitch), std::sin(pitch), std::cos(yaw) * std::cos(pitch)}, f64)
-          .view({1, 3});
-  const torch::Tensor eye = target + pose.radius * offset;
-  const torch::Tensor roll = torch::full({1}, pose.roll * kDegToRad, f64);
-  // Built in double, so that yaw = pitch = roll = 0 reproduces the frontal constant exactly.
-  return LookAtCam2World(eye, target, roll).squeeze(0).to(options.device(), options.dtype().toScalarType());
+torch::Tensor OrbitCam2World(const ViewPose& pose, const torch::TensorOptions& options) {
+  // Built in double, so that the zero pose reproduces the frontal constant exactly.
+  const std::array<double, 16> m = ViewCam2World(pose, kFrontalCam2World);
+  std::vector<double> values(m.begin(), m.end());
+  return torch::tensor(values, torch::TensorOptions().dtype(torch::kFloat64))
+      .view({4, 4})
+      .to(options.device(), options.dtype().toScalarType());
 }
 
 torch::Tensor ProjectPoints(const torch::Tensor& points, const Cameras& cameras) {

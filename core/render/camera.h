@@ -14,23 +14,12 @@
 
 #include <torch/torch.h>
 
+#include "core/render/view_pose.h"
+
 namespace avatar::render {
 
-// Normalised focal length of the published camera (fx = fy; horizontal FOV 13.37 degrees).
-inline constexpr double kFocal = 4.2647;
-// Normalised principal point (cx = cy).
-inline constexpr double kPrincipalPoint = 0.5;
-// Distance from the camera centre to the look-at point.
-inline constexpr double kCameraRadius = 2.7;
 // Floats in one camera label.
 inline constexpr int64_t kCameraLabelSize = 25;
-
-// C_front: the fixed frontal camera (row-major cam2world): centre (0,0,2.7), looking at the
-// origin along -z, camera y pointing down the world y axis.
-inline constexpr std::array<double, 16> kFrontalCam2World = {1.0, 0.0,  0.0,  0.0,            //
-                                                             0.0, -1.0, 0.0,  0.0,            //
-                                                             0.0, 0.0,  -1.0, kCameraRadius,  //
-                                                             0.0, 0.0,  0.0,  1.0};
 
 // A batch of cameras.
 struct Cameras {
@@ -61,40 +50,10 @@ void CheckCameras(const Cameras& cameras);
 // Returns [B,4,4]. Throws InvalidInput when eye == target or the view is vertical.
 torch::Tensor LookAtCam2World(const torch::Tensor& eye, const torch::Tensor& target, const torch::Tensor& roll);
 
-// A camera on a sphere around a target.
-struct OrbitPose {
-  // Rotation about the world y axis in degrees; positive moves the camera towards +x.
-  double yaw = 0.0;
-  // Elevation in degrees, in (-90, 90); positive moves the camera up (it looks down).
-  double pitch = 0.0;
-  // Rotation about the viewing axis in degrees (see LookAtCam2World).
-  double roll = 0.0;
-  // Distance from the target.
-  double radius = kCameraRadius;
-  // Look-at point, x (world units).
-  double target_x = 0.0;
-  // Look-at point, y.
-  double target_y = 0.0;
-  // Look-at point, z.
-  double target_z = 0.0;
-
-  template <typename V>
-  void Visit(V&& v) {
-    v("yaw", yaw, "Camera yaw in degrees (positive: camera moves towards +x)");
-    v("pitch", pitch, "Camera pitch in degrees, -90..90 exclusive (positive: camera above)");
-    v("roll", roll, "Camera roll about the viewing axis in degrees");
-    v("radius", radius, "Distance from the camera to the look-at point");
-    v("target_x", target_x, "Look-at point x");
-    v("target_y", target_y, "Look-at point y");
-    v("target_z", target_z, "Look-at point z");
-  }
-  // Throws InvalidOptions for non-finite values, radius <= 0 or |pitch| >= 90.
-  void Validate() const;
-};
-
-// The cam2world of an orbit pose: eye = target + radius * (sin(yaw)cos(pitch), sin(pitch),
-// cos(yaw)cos(pitch)). OrbitCam2World({}) equals FrontalCam2World(). [4,4]
-torch::Tensor OrbitCam2World(const OrbitPose& pose, const torch::TensorOptions& options = torch::kFloat32);
+// The cam2world [4,4] of a pose about the frontal camera: ViewCam2World(pose, kFrontalCam2World)
+// (view_pose.h), a camera on a sphere of radius kCameraRadius / zoom around the origin, looking at
+// it. OrbitCam2World({}) equals FrontalCam2World(). Throws InvalidOptions for a bad pose.
+torch::Tensor OrbitCam2World(const ViewPose& pose, const torch::TensorOptions& options = torch::kFloat32);
 
 // Projects world points [B,P,3] into each camera: returns [B,P,3] = (u, v, z) with (u,v) the
 // normalised image position and z the depth along the camera's optical axis.

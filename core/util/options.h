@@ -13,8 +13,11 @@
 // Supported field types: bool, int, int64_t, float, double, std::string,
 // std::vector<std::string> (a repeatable flag; each occurrence appends).
 
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -92,6 +95,18 @@ void FromJson(Options& opts, const nlohmann::json& j) {
     known.emplace_back(name);
     auto it = j.find(name);
     if (it == j.end()) return;
+    using T = std::decay_t<decltype(field)>;
+    if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool>) {
+      // nlohmann converts true to 1 and 64.5 to 64 silently; a config file means what it says.
+      AVATAR_CHECK_OPTION(it->is_number()) << "option '" << name << "' must be a number in JSON, got " << it->dump();
+      if constexpr (std::is_integral_v<T>) {
+        const double v = it->get<double>();
+        AVATAR_CHECK_OPTION(std::isfinite(v) && v == std::floor(v) &&
+                            v >= static_cast<double>(std::numeric_limits<T>::min()) &&
+                            v <= static_cast<double>(std::numeric_limits<T>::max()))
+            << "option '" << name << "' must be a whole number in JSON, got " << it->dump();
+      }
+    }
     try {
       it->get_to(field);
     } catch (const nlohmann::json::exception& e) {

@@ -19,6 +19,7 @@
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
 #include "core/pipeline/animate.h"
+#include "core/pipeline/export.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "morphable/morphable_test_util.h"
@@ -221,11 +222,20 @@ TEST(Animate, ExportFailureLeavesNoFile) {
   AnimateOptions o;
   o.source = Portrait();
   o.output = (dir / "out.mp4").string();
-  o.width = 63;  // H.264 needs even sizes: the sink refuses it before writing.
+  o.width = 63;  // H.264 needs even sizes: refused as an option, before the portrait's analysis.
   o.height = 64;
   o.view = "orbit";
   RunContext ctx;
-  EXPECT_THROW(RunAnimation(o, ctx), InvalidInput);
+  EXPECT_THROW(RunAnimation(o, ctx), InvalidOptions);
+  EXPECT_TRUE(dir.List().empty());
+  // The MP4 sink refuses it too, before writing, for callers that skip AnimateOptions.
+  ExportOptions e;
+  e.output = o.output;
+  const FrameProducer never = [](int64_t, ExportFrame&) -> bool {
+    ADD_FAILURE() << "no frame should be asked for";
+    return false;
+  };
+  EXPECT_THROW(ExportFrames(never, 10, 63, 64, e, ctx), InvalidInput);
   EXPECT_TRUE(dir.List().empty());
 }
 

@@ -1,5 +1,5 @@
-// `avatar-studio bench train` through the real executable: the table, the JSON file, the
-// relations between its columns, usage errors and Ctrl+C.
+// `avatar-studio bench train`: the table, the JSON file and the relations between its columns, and
+// Ctrl+C, through the real executable; usage errors and help in this process (command library).
 #include <algorithm>
 #include <cmath>
 #include <fstream>
@@ -10,12 +10,14 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "cli/in_process.h"
 #include "common/run_process.h"
 #include "common/temp_dir.h"
 
 namespace avatar {
 namespace {
 
+using avatar::testing::InProcess;
 using avatar::testing::ProcessResult;
 using avatar::testing::TempDir;
 
@@ -127,22 +129,27 @@ TEST(BenchTrain, JsonAgreesWithItselfAndTheReferenceIsAddedWhenNotAsked) {
   }
 }
 
+// Argument checks run in this process (the command library); the runs above and below use the binary.
 TEST(BenchTrain, BadOptionsAreUsageErrors) {
-  for (const char* args : {"--configs huge", "--configs ''", "--batches 0", "--batches 1,x", "--batches 65",
-                           "--steps 0", "--warmup -1", "--perceptual vgg", "--bogus 1", "stray"}) {
-    const auto r = Studio(std::string("bench train ") + args);
-    EXPECT_EQ(r.exit_code, 2) << args << "\n" << r.err;
-    EXPECT_NE(r.err.find("bench train"), std::string::npos) << args << "\n" << r.err;
+  const std::vector<std::vector<std::string>> cases = {
+      {"--configs", "huge"}, {"--configs", ""},  {"--batches", "0"},    {"--batches", "1,x"},      {"--batches", "65"},
+      {"--steps", "0"},      {"--warmup", "-1"}, {"--perceptual", "vgg"}, {"--bogus", "1"}, {"stray"}};
+  for (const auto& flags : cases) {
+    std::vector<std::string> args = {"bench", "train"};
+    args.insert(args.end(), flags.begin(), flags.end());
+    const auto r = InProcess(args);
+    EXPECT_EQ(r.exit_code, 2) << flags[0] << "\n" << r.err;
+    EXPECT_NE(r.err.find("bench train"), std::string::npos) << flags[0] << "\n" << r.err;
   }
 }
 
 TEST(BenchTrain, HelpListsTheOptionsAndBenchListsTheSubject) {
-  const auto help = Studio("bench train --help");
+  const auto help = InProcess({"bench", "train", "--help"});
   EXPECT_EQ(help.exit_code, 0) << help.err;
   for (const char* flag : {"--configs", "--batches", "--steps", "--warmup", "--perceptual", "--json", "--threads"}) {
     EXPECT_NE(help.out.find(flag), std::string::npos) << flag << "\n" << help.out;
   }
-  const auto bench = Studio("bench --help");
+  const auto bench = InProcess({"bench", "--help"});
   EXPECT_EQ(bench.exit_code, 0);
   EXPECT_NE(bench.out.find("  train "), std::string::npos) << bench.out;
 }

@@ -55,9 +55,9 @@ Inputs MakeInputs(const ModelConfig& c) {
   const torch::Tensor rx = torch::linspace(-1, 1, r).view({1, 1, 1, r}).expand({1, 1, r, r});
   in.target = torch::cat({rx * 0.5, ry * 0.5, rx * ry * 0.5}, 1);
   in.source_cam = render::FrontalCameras(1);
-  render::OrbitPose pose;
+  render::ViewPose pose;  // The camera 15 degrees to the side and 5 above.
   pose.yaw = 15;
-  pose.pitch = 5;
+  pose.pitch = -5;
   in.target_cam = {render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
   return in;
 }

@@ -30,9 +30,9 @@ Batch MakeBatch(const ModelConfig& c) {
   b.target = torch::cat({rx * 0.5, ry * 0.5, rx * ry * 0.5}, 1);
   b.target_hr = ResizeBilinear(b.target, c.sr_size, c.sr_size);
   b.source_cam = render::FrontalCameras(1);
-  render::OrbitPose pose;
+  render::ViewPose pose;  // The camera 15 degrees to the side and 5 above.
   pose.yaw = 15;
-  pose.pitch = 5;
+  pose.pitch = -5;
   b.target_cam = {render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)};
   return b;
 }

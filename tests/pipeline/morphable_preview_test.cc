@@ -22,6 +22,9 @@
 namespace avatar {
 namespace {
 
+// The head rotation of a pose as an OpenCV matrix.
+cv::Matx33d HeadMatrix(const ViewPose& pose) { return cv::Matx33d(render::HeadRotation(pose).data()); }
+
 namespace mt = morphable::testing;
 
 const morphable::MorphableModel& Model() {
@@ -32,7 +35,7 @@ const morphable::MorphableModel& Model() {
 // Landmarks of the model's mean face turned by `pose` in front of the frontal camera.
 face::Landmarks LandmarksAt(const ViewPose& pose, cv::Size size) {
   std::vector<cv::Point3f> v = Model().Vertices({}, {});
-  const cv::Matx33d r = HeadRotation(pose);
+  const cv::Matx33d r = HeadMatrix(pose);
   for (auto& p : v) {
     const cv::Vec3d q = r * cv::Vec3d(p.x, p.y, p.z);
     p = cv::Point3f(float(q[0]), float(q[1]), float(q[2]));
@@ -57,22 +60,22 @@ TEST(HeadPose, RotationAndAnglesRoundTrip) {
   std::uniform_real_distribution<double> yaw(-80, 80), pitch(-60, 60), roll(-60, 60);
   for (int i = 0; i < 200; ++i) {
     const ViewPose p{yaw(rng), pitch(rng), roll(rng), 1.0};
-    const ViewPose q = PoseFromRotation(HeadRotation(p));
+    const ViewPose q = render::PoseFromRotation(render::HeadRotation(p));
     EXPECT_NEAR(q.yaw, p.yaw, 1e-9);
     EXPECT_NEAR(q.pitch, p.pitch, 1e-9);
     EXPECT_NEAR(q.roll, p.roll, 1e-9);
   }
-  const cv::Matx33d r = HeadRotation({30, 20, 10, 1});
+  const cv::Matx33d r = HeadMatrix({30, 20, 10, 1});
   EXPECT_NEAR(cv::determinant(r), 1.0, 1e-12);
   EXPECT_LT(cv::norm(r * r.t() - cv::Matx33d::eye()), 1e-12);
 }
 
 TEST(HeadPose, PositiveAnglesTurnTheNoseLeftAndUp) {
   const cv::Vec3d nose(0, 0, 1);  // The face looks along +z; image right is +x, up is +y.
-  EXPECT_LT((HeadRotation({20, 0, 0, 1}) * nose)[0], -0.3);
-  EXPECT_GT((HeadRotation({0, 20, 0, 1}) * nose)[1], 0.3);
+  EXPECT_LT((HeadMatrix({20, 0, 0, 1}) * nose)[0], -0.3);
+  EXPECT_GT((HeadMatrix({0, 20, 0, 1}) * nose)[1], 0.3);
   const cv::Vec3d right(1, 0, 0);
-  EXPECT_LT((HeadRotation({0, 0, 20, 1}) * right)[1], -0.3);  // Clockwise on screen: +x dips.
+  EXPECT_LT((HeadMatrix({0, 0, 20, 1}) * right)[1], -0.3);  // Clockwise on screen: +x dips.
 }
 
 TEST(MorphablePreview, RecoversTheHeadPoseOfThePortrait) {

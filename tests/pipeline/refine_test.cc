@@ -125,7 +125,7 @@ TEST_F(Refine, SourceViewPsnrGrows) {
   EXPECT_FALSE(SamePlanes(r.avatar, avatar_));
   // The input avatar is untouched and the refined one renders.
   EXPECT_EQ(SourceViewPsnr(*session_, avatar_, target_), before);
-  const Frame f = session_->Animate(r.avatar, {}, View{30, 0}, Preset::kStandard);
+  const Frame f = session_->Animate(r.avatar, {}, ViewPose{30}, Preset::kStandard);
   EXPECT_EQ(f.bgr.rows, session_->Info().render_size);
   const nlohmann::json info = nlohmann::json::parse(r.avatar.RefinementInfo());
   EXPECT_EQ(info.at("steps").get<int>(), 40);
@@ -243,7 +243,7 @@ TEST_F(Refine, RefinedAvatarFileRoundTripIsExact) {
   const Avatar loaded = session_->LoadAvatar(path);
   EXPECT_TRUE(SamePlanes(loaded, r.avatar));
   EXPECT_EQ(loaded.RefinementInfo(), r.avatar.RefinementInfo());
-  for (const View& view : {View{}, View{30, 5}}) {
+  for (const ViewPose& view : {ViewPose{}, ViewPose{30, -5}}) {
     const Frame a = session_->Animate(r.avatar, Expression{{{"jawOpen", 0.4f}}}, view, Preset::kStandard);
     const Frame b = session_->Animate(loaded, Expression{{{"jawOpen", 0.4f}}}, view, Preset::kStandard);
     EXPECT_EQ(cv::norm(a.bgr, b.bgr, cv::NORM_INF), 0.0);
@@ -266,7 +266,7 @@ TEST_F(Refine, ExtremeSettingsStayFinite) {
   EXPECT_TRUE(torch::isfinite(SessionAccess::Appearance(r.avatar)).all().item<bool>());
   EXPECT_TRUE(std::isfinite(r.loss_after));
   EXPECT_LE(r.loss_after, r.loss_before);  // the best evaluated planes are kept
-  const Frame f = session_->Animate(r.avatar, {}, View{}, Preset::kStandard);
+  const Frame f = session_->Animate(r.avatar, {}, ViewPose{}, Preset::kStandard);
   EXPECT_TRUE(cv::checkRange(f.opacity) && cv::checkRange(f.depth));
 
   RefineOptions bad = FastOptions(1);
@@ -292,7 +292,7 @@ TEST_F(Refine, RejectsForeignAndEmptyAvatars) {
 }
 
 TEST_F(Refine, LeavesTheSharedNetworkUntouchedWhileOthersAnimate) {
-  const Frame reference = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+  const Frame reference = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
   RefineResult r;
   std::thread refiner([&] {
     RunContext ctx;
@@ -300,12 +300,12 @@ TEST_F(Refine, LeavesTheSharedNetworkUntouchedWhileOthersAnimate) {
   });
   int frames = 0;
   for (; frames < 10; ++frames) {
-    const Frame f = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+    const Frame f = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
     EXPECT_EQ(cv::norm(f.bgr, reference.bgr, cv::NORM_INF), 0.0) << "frame " << frames;
   }
   refiner.join();
   EXPECT_EQ(r.steps, 30);
-  const Frame after = session_->Animate(avatar_, {}, View{20, 0}, Preset::kStandard);
+  const Frame after = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
   EXPECT_EQ(cv::norm(after.bgr, reference.bgr, cv::NORM_INF), 0.0);
   for (const auto& p : SessionAccess::Model(*session_)->parameters()) EXPECT_FALSE(p.grad().defined());
 }

@@ -18,12 +18,15 @@
 namespace avatar {
 namespace {
 
+// The head rotation of a pose as an OpenCV matrix.
+cv::Matx33d HeadMatrix(const ViewPose& pose) { return cv::Matx33d(render::HeadRotation(pose).data()); }
+
 morphable::PinholeCamera Decode(const CameraLabel25& label) { return morphable::PinholeCamera::FromLabel(label); }
 
 // A source camera that is neither frontal nor centred on the head, with its own intrinsics.
 CameraLabel25 OffCentreCamera() {
   const cv::Matx33d front = Decode(morphable::FrontalLabel()).world_to_cam;
-  const cv::Matx33d r = front * HeadRotation(ViewPose{18, -9, 4, 1});
+  const cv::Matx33d r = front * HeadMatrix(ViewPose{18, -9, 4, 1});
   const cv::Vec3d head_in_camera(0.07, -0.19, 2.65);  // the head's origin off the optical axis
   CameraLabel25 label = morphable::LabelFromPose(r, -(r.t() * head_in_camera));
   label[16 + 0] = label[16 + 4] = 4.1f;  // focal
@@ -40,7 +43,7 @@ TEST(CameraForView, TurningTheHeadIsOrbitingTheCamera) {
   for (const ViewPose pose : {ViewPose{25, 0, 0, 1}, ViewPose{0, 15, 0, 1}, ViewPose{0, 0, 20, 1},
                               ViewPose{-30, -10, 8, 1}, ViewPose{10, 5, 0, 1.5}}) {
     const morphable::PinholeCamera orbit = Decode(CameraForView(pose, frontal));
-    const cv::Matx33d r = HeadRotation(pose);
+    const cv::Matx33d r = HeadMatrix(pose);
     for (const cv::Vec3d& p : head) {
       // Zoom: the frontal camera moves to 2.7 / zoom along its axis.
       morphable::PinholeCamera near = front;
@@ -52,7 +55,7 @@ TEST(CameraForView, TurningTheHeadIsOrbitingTheCamera) {
     }
   }
   // The frontal pose of the frontal camera is the session's default orbit camera.
-  render::Cameras orbit{render::OrbitCam2World(render::OrbitPose{}).unsqueeze(0),
+  render::Cameras orbit{render::OrbitCam2World(render::ViewPose{}).unsqueeze(0),
                         render::DefaultIntrinsics().unsqueeze(0)};
   const CameraLabel25 session_front = morphable::LabelFromTensor(render::LabelsFromCameras(orbit));
   const CameraLabel25 ours = CameraForView(ViewPose{}, frontal);
@@ -61,7 +64,7 @@ TEST(CameraForView, TurningTheHeadIsOrbitingTheCamera) {
 
 TEST(CameraForView, TheSourcePoseIsTheSourceCamera) {
   const CameraLabel25 source = OffCentreCamera();
-  const ViewPose pose = PoseOfCamera(source);
+  const ViewPose pose = render::PoseOfCamera(source);
   EXPECT_NEAR(pose.yaw, 18.0, 1e-4);
   EXPECT_NEAR(pose.pitch, -9.0, 1e-4);
   EXPECT_NEAR(pose.roll, 4.0, 1e-4);

@@ -76,7 +76,7 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
   EXPECT_EQ(c.renders, 1);  // the lifting depth render
 
   session.ResetCounters();
-  session.Animate(avatar, {}, View{}, Preset::kPreview);
+  session.Animate(avatar, {}, ViewPose{}, Preset::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.expression_images, 1);
   EXPECT_EQ(c.expression_encoder, 1);
@@ -84,7 +84,7 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
 
   // Camera-only changes: zero encoders.
   session.ResetCounters();
-  for (double yaw : {-30.0, 0.0, 25.0, 60.0}) session.Animate(avatar, {}, View{yaw, 10.0}, Preset::kPreview);
+  for (double yaw : {-30.0, 0.0, 25.0, 60.0}) session.Animate(avatar, {}, ViewPose{yaw, -10.0}, Preset::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.canonical_encoder + c.appearance_encoder + c.expression_encoder, 0);
   EXPECT_EQ(c.expression_images, 0);
@@ -94,7 +94,7 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
 
   // Expression change: only E_e (and the expression image).
   session.ResetCounters();
-  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, View{10.0}, Preset::kPreview);
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{10.0}, Preset::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.expression_encoder, 1);
   EXPECT_EQ(c.expression_images, 1);
@@ -102,8 +102,8 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
 
   // An explicit zero is the neutral expression (cache hit), SR only for the final preset.
   session.ResetCounters();
-  session.Animate(avatar, {{{"jawOpen", 0.0f}}}, View{}, Preset::kStandard);
-  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, View{}, Preset::kFinal);
+  session.Animate(avatar, {{{"jawOpen", 0.0f}}}, ViewPose{}, Preset::kStandard);
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{}, Preset::kFinal);
   c = session.Counters();
   EXPECT_EQ(c.expression_encoder, 0);
   EXPECT_EQ(c.super_resolutions, 1);
@@ -115,7 +115,7 @@ TEST(Session, FramesHaveTheRightSizesAndRanges) {
   const Avatar avatar = MakeAvatar(session);
   const ModelConfig c = ModelConfig::Tiny();
   for (Preset preset : {Preset::kPreview, Preset::kStandard, Preset::kFinal}) {
-    const Frame f = session.Animate(avatar, {{{"smile", 0.5f}}}, View{20, -10, 5}, preset);
+    const Frame f = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{20, 10, -5}, preset);
     const int side = preset == Preset::kFinal ? c.sr_size : c.render_size;
     EXPECT_EQ(f.bgr.type(), CV_8UC3);
     EXPECT_EQ(f.bgr.rows, side);
@@ -137,16 +137,16 @@ TEST(Session, FramesHaveTheRightSizesAndRanges) {
 TEST(Session, DeterministicAndExpressionSensitive) {
   Session session(TinyOptions());
   const Avatar avatar = MakeAvatar(session);
-  const Frame a = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard);
-  const Frame b = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard);
+  const Frame a = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard);
+  const Frame b = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.depth, b.depth));
   // A fresh session (cache cold) gives the same frame.
   Session other(TinyOptions());
   const Avatar avatar2 = MakeAvatar(other);
-  EXPECT_TRUE(SameMat(a.bgr, other.Animate(avatar2, {{{"jawOpen", 1.0f}}}, View{15}, Preset::kStandard).bgr));
+  EXPECT_TRUE(SameMat(a.bgr, other.Animate(avatar2, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard).bgr));
   // Changing the expression changes the frame (T_e differs), even with random weights.
-  const Frame n = session.Animate(avatar, {}, View{15}, Preset::kStandard);
+  const Frame n = session.Animate(avatar, {}, ViewPose{15}, Preset::kStandard);
   EXPECT_GT(cv::norm(a.opacity, n.opacity, cv::NORM_INF) + cv::norm(a.bgr, n.bgr, cv::NORM_INF), 0.0);
 }
 
@@ -160,8 +160,8 @@ TEST(Session, AvatarFileRoundTripGivesIdenticalFrames) {
   EXPECT_EQ(loaded.SourceCamera(), avatar.SourceCamera());
   EXPECT_TRUE(SameMat(loaded.SourceImage(), avatar.SourceImage()));
   EXPECT_EQ(loaded.ControlNames(), avatar.ControlNames());
-  const Frame a = session.Animate(avatar, {{{"smile", 0.3f}}}, View{-20, 5}, Preset::kFinal);
-  const Frame b = session.Animate(loaded, {{{"smile", 0.3f}}}, View{-20, 5}, Preset::kFinal);
+  const Frame a = session.Animate(avatar, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, Preset::kFinal);
+  const Frame b = session.Animate(loaded, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, Preset::kFinal);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.opacity, b.opacity));
   // Saving the loaded avatar again reproduces the file byte for byte.
@@ -176,7 +176,7 @@ TEST(Session, AvatarFilesFromOtherModelsOrDamagedAreRejected) {
   session.SaveAvatar(avatar, dir.path() / "a.avatar");
   Session other_seed(TinyOptions(4));
   EXPECT_THROW(other_seed.LoadAvatar(dir.path() / "a.avatar"), ModelLoad);
-  EXPECT_THROW(other_seed.Animate(avatar, {}, View{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(other_seed.Animate(avatar, {}, ViewPose{}, Preset::kPreview), InvalidInput);
   std::string bytes = ReadFileBytes(dir.path() / "a.avatar");
   WriteBytesAtomically(dir.path() / "cut.avatar", bytes.substr(0, bytes.size() / 3));
   EXPECT_THROW(session.LoadAvatar(dir.path() / "cut.avatar"), ModelLoad);
@@ -203,8 +203,8 @@ TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   EXPECT_EQ(a.Info().parameters, b.Info().parameters);
   EXPECT_EQ(a.Info().config_name, "tiny");
   EXPECT_EQ(a.Info().model_id.rfind("ckpt:", 0), 0u);
-  const Frame fa = a.Animate(MakeAvatar(a), {{{"jawOpen", 0.4f}}}, View{30}, Preset::kFinal);
-  const Frame fb = b.Animate(MakeAvatar(b), {{{"jawOpen", 0.4f}}}, View{30}, Preset::kFinal);
+  const Frame fa = a.Animate(MakeAvatar(a), {{{"jawOpen", 0.4f}}}, ViewPose{30}, Preset::kFinal);
+  const Frame fb = b.Animate(MakeAvatar(b), {{{"jawOpen", 0.4f}}}, ViewPose{30}, Preset::kFinal);
   EXPECT_TRUE(SameMat(fa.bgr, fb.bgr));
 }
 
@@ -220,8 +220,8 @@ TEST(Session, StageOneWeightsUpsampleInsteadOfRunningTheUntrainedSr) {
   EXPECT_NE(DescribeModel(session.Info()).find("super-resolution not trained"), std::string::npos);
   const Avatar avatar = MakeAvatar(session);
   session.ResetCounters();
-  const Frame standard = session.Animate(avatar, {}, View{10}, Preset::kStandard);
-  const Frame final_frame = session.Animate(avatar, {}, View{10}, Preset::kFinal);
+  const Frame standard = session.Animate(avatar, {}, ViewPose{10}, Preset::kStandard);
+  const Frame final_frame = session.Animate(avatar, {}, ViewPose{10}, Preset::kFinal);
   EXPECT_EQ(session.Counters().super_resolutions, 0);
   EXPECT_FALSE(final_frame.super_resolved);
   EXPECT_TRUE(final_frame.upsampled);
@@ -279,7 +279,7 @@ TEST(Session, DefaultIsTheInstalledModelElseTheBundledOneElseAClearError) {
 TEST(Session, BadInputsGiveTypedErrors) {
   Session session(TinyOptions());
   RunContext ctx;
-  EXPECT_THROW(session.Animate(Avatar{}, {}, View{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(Avatar{}, {}, ViewPose{}, Preset::kPreview), InvalidInput);
   face::AlignedPortrait empty;
   EXPECT_THROW(session.ReconstructFromAnalysis(empty, FrontalFit(), ctx), InvalidInput);
   SourceFit nan_fit = FrontalFit();
@@ -291,9 +291,9 @@ TEST(Session, BadInputsGiveTypedErrors) {
   EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), bad_fit, ctx),
                InvalidInput);
   const Avatar avatar = MakeAvatar(session);
-  EXPECT_THROW(session.Animate(avatar, {{{"frown", 1.0f}}}, View{}, Preset::kPreview), InvalidInput);
-  EXPECT_THROW(session.Animate(avatar, {}, View{0, 90}, Preset::kPreview), InvalidOptions);
-  EXPECT_THROW(session.Animate(avatar, {}, View{0, 0, 0, -1}, Preset::kPreview), InvalidOptions);
+  EXPECT_THROW(session.Animate(avatar, {{{"frown", 1.0f}}}, ViewPose{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{std::nan(""), 0}, Preset::kPreview), InvalidOptions);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{0, 0, 0, -1}, Preset::kPreview), InvalidOptions);
   EXPECT_THROW(PresetFromName("ultra"), InvalidOptions);
   EXPECT_THROW(session.Reconstruct(cv::Mat(), ctx), InvalidInput);
 }
@@ -308,7 +308,7 @@ TEST(Session, HardCasesStayFinite) {
   black.matte = cv::Mat::zeros(512, 512, CV_32FC1);
   const Avatar dark = session.ReconstructFromAnalysis(black, FrontalFit(), ctx);
   for (const Avatar* a : {&small, &dark}) {
-    for (const View& v : {View{180, 0}, View{-179, 89.5}, View{0, -89.5, 180}, View{45, 0, 0, 0.3}}) {
+    for (const ViewPose& v : {ViewPose{180, 0}, ViewPose{-179, -89.5}, ViewPose{0, 89.5, -180}, ViewPose{45, 0, 0, 9.0}}) {
       const Frame f = session.Animate(*a, {{{"jawOpen", 5.0f}, {"smile", -3.0f}}}, v, Preset::kFinal);
       EXPECT_TRUE(cv::checkRange(f.opacity));
       EXPECT_TRUE(cv::checkRange(f.depth));
@@ -323,7 +323,7 @@ TEST(Session, CancellationStopsReconstructAndAnimate) {
   ctx.RequestCancel();
   EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), FrontalFit(), ctx),
                Cancelled);
-  EXPECT_THROW(session.Animate(avatar, {}, View{}, Preset::kPreview, &ctx), Cancelled);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{}, Preset::kPreview, &ctx), Cancelled);
   // Progress is reported while reconstructing.
   std::vector<double> fractions;
   RunContext progress([&](const Progress& p) { fractions.push_back(p.fraction); });
@@ -338,8 +338,8 @@ TEST(Session, ConcurrentAnimateMatchesSerial) {
   options.expression_cache = 2;
   Session session(options);
   const Avatar avatar = MakeAvatar(session);
-  std::vector<View> views;
-  for (int i = 0; i < 6; ++i) views.push_back(View{-40.0 + 15 * i, 5.0 * (i % 3)});
+  std::vector<ViewPose> views;
+  for (int i = 0; i < 6; ++i) views.push_back(ViewPose{-40.0 + 15 * i, -5.0 * (i % 3)});
   // Thread t renders frames t, t+2, t+4; the schedule gives every thread a new expression on
   // every frame, and the two threads different expressions at the same time (0, 0.5, 1 against
   // 0.5, 1, 0). The tiny random network's colours barely vary (8-bit frames can be equal), so
@@ -391,12 +391,12 @@ TEST(Session, AnimateAtACameraLabel) {
   std::array<float, 25> front{};
   const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
   for (int i = 0; i < 25; ++i) front[i] = label[i].item<float>();
-  const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, View{}, Preset::kStandard);
+  const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{}, Preset::kStandard);
   const Frame b = session.Animate(avatar, {{{"smile", 0.5f}}}, front, Preset::kStandard);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.opacity, b.opacity));
   EXPECT_TRUE(SameMat(a.depth, b.depth));
-  const Frame c = session.Animate(avatar, {{{"smile", 0.5f}}}, View{25}, Preset::kStandard);
+  const Frame c = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{25}, Preset::kStandard);
   EXPECT_FALSE(SameMat(a.opacity, c.opacity));
   std::array<float, 25> bad = front;
   bad[0] = 2.0f;  // not a rotation

@@ -29,6 +29,9 @@
 namespace avatar {
 namespace {
 
+// The head rotation of a pose as an OpenCV matrix.
+cv::Matx33d HeadMatrix(const ViewPose& pose) { return cv::Matx33d(render::HeadRotation(pose).data()); }
+
 class SourceView : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -100,7 +103,7 @@ TEST_F(SourceView, ResetViewAndOrbitFrameZeroLineUpWithTheSourceCamera) {
   // origin from 2.7) gave, for the record: the figure the source-camera camera fixes.
   const morphable::Beta zero = Model().ZeroBeta();
   std::vector<cv::Point3f> turned = morphable::WorldVertices(Model(), analysis_->morphable_fit, &zero);
-  const cv::Matx33d r = HeadRotation(preview.SourcePose());
+  const cv::Matx33d r = HeadMatrix(preview.SourcePose());
   for (auto& v : turned) {
     const cv::Vec3d q = r * cv::Vec3d(v.x, v.y, v.z);
     v = cv::Point3f(static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2]));

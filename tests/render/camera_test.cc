@@ -18,8 +18,8 @@ const auto kF64 = torch::TensorOptions().dtype(torch::kFloat64);
 
 Cameras SomeCameras() {
   Cameras c;
-  c.cam2world = torch::stack({OrbitCam2World({25.0, 10.0, 7.0, 2.5, 0.0, 0.05, 0.2}, kF64),
-                              OrbitCam2World({-40.0, -15.0, -3.0, 3.0}, kF64), FrontalCam2World(kF64)});
+  c.cam2world = torch::stack({testing::LookAtOrbit(25.0, 10.0, 7.0, 2.5, {0.0, 0.05, 0.2}, kF64),
+                              OrbitCam2World({-40.0, 15.0, 3.0, kCameraRadius / 3.0}, kF64), FrontalCam2World(kF64)});
   c.intrinsics = DefaultIntrinsics(kF64).unsqueeze(0).repeat({3, 1, 1});
   c.intrinsics[1][0][0] = 3.9;   // fx != fy
   c.intrinsics[1][0][1] = 0.02;  // skew
@@ -65,10 +65,11 @@ TEST(Camera, AxesFollowOpenCvInAYUpWorld) {
   EXPECT_NEAR(uvz[0][2].item<double>(), kCameraRadius, 1e-12);
   EXPECT_GT(uvz[1][0].item<double>(), 0.5);
   EXPECT_LT(uvz[2][1].item<double>(), 0.5);
-  // Orbit: yaw 90 puts the camera on +x; pitch 30 above; the target projects to the centre.
-  const torch::Tensor side = OrbitCam2World({90.0, 0.0, 0.0, 2.0}, kF64);
+  // Pose: yaw 90 puts the camera on +x; the head tilted down 30 puts it above; the look-at target
+  // projects to the centre.
+  const torch::Tensor side = OrbitCam2World({90.0, 0.0, 0.0, kCameraRadius / 2.0}, kF64);
   EXPECT_NEAR(side[0][3].item<double>(), 2.0, 1e-12);
-  const torch::Tensor above = OrbitCam2World({0.0, 30.0}, kF64);
+  const torch::Tensor above = OrbitCam2World({0.0, -30.0}, kF64);
   EXPECT_NEAR(above[1][3].item<double>(), kCameraRadius * 0.5, 1e-12);
   Cameras c = SomeCameras();
   const torch::Tensor target = torch::tensor({0.0, 0.05, 0.2}, kF64).view({1, 1, 3});
@@ -79,7 +80,8 @@ TEST(Camera, AxesFollowOpenCvInAYUpWorld) {
   const torch::Tensor r = c.cam2world.narrow(1, 0, 3).narrow(2, 0, 3);
   EXPECT_LE((torch::bmm(r.transpose(1, 2), r) - torch::eye(3, kF64)).abs().max().item<double>(), 1e-12);
   EXPECT_NEAR(torch::det(r).min().item<double>(), 1.0, 1e-12);
-  EXPECT_THROW(OrbitCam2World({0.0, 90.0}), InvalidOptions);
+  EXPECT_THROW(OrbitCam2World({0.0, 0.0, 0.0, 0.0}), InvalidOptions);
+  EXPECT_THROW(OrbitCam2World({std::nan(""), 0.0}), InvalidOptions);
   EXPECT_THROW(LookAtCam2World(torch::zeros({1, 3}), torch::zeros({1, 3}), torch::zeros({1})), InvalidInput);
 }
 

@@ -5,12 +5,30 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <array>
 #include <cmath>
 
 #include "core/model/triplane_decoder.h"
 #include "core/render/renderer.h"
 
 namespace avatar::render::testing {
+
+// A look-at camera on a sphere around `target`, in camera terms (pitch > 0: the camera above; roll
+// as LookAtCam2World), built without ViewPose: for cameras a pose about the frontal camera cannot
+// express (off-origin targets, radii inside the head's box) and as the reference OrbitCam2World is
+// checked against. cam2world [4,4].
+inline torch::Tensor LookAtOrbit(double yaw, double pitch, double roll, double radius,
+                                 const std::array<double, 3>& target = {0.0, 0.0, 0.0},
+                                 const torch::TensorOptions& options = torch::kFloat32) {
+  const double d = M_PI / 180.0;
+  const auto f64 = torch::TensorOptions().dtype(torch::kFloat64);
+  const torch::Tensor t = torch::tensor({target[0], target[1], target[2]}, f64).view({1, 3});
+  const torch::Tensor dir = torch::tensor(
+      {std::sin(yaw * d) * std::cos(pitch * d), std::sin(pitch * d), std::cos(yaw * d) * std::cos(pitch * d)}, f64);
+  return LookAtCam2World(t + radius * dir.view({1, 3}), t, torch::full({1}, roll * d, f64))
+      .squeeze(0)
+      .to(options.dtype().toScalarType());
+}
 
 // Plane channels of the analytic scene (all other channels are 0).
 inline constexpr int kChannelZ = 0;       // mean over planes = 2 z_n / 3 (z_n = 2 z / box_warp)

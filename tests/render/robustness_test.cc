@@ -114,8 +114,8 @@ TEST(HardCases, CameraInsideTheVolume) {
   o.near = 0.0;
   o.far = 1.2;
   Cameras cams = FrontalCameras(2);
-  cams.cam2world[0].copy_(OrbitCam2World({0.0, 0.0, 0.0, 0.1}));
-  cams.cam2world[1].copy_(OrbitCam2World({130.0, 20.0, 10.0, 0.2, 0.1, 0.0, 0.0}));
+  cams.cam2world[0].copy_(testing::LookAtOrbit(0.0, 0.0, 0.0, 0.1));
+  cams.cam2world[1].copy_(testing::LookAtOrbit(130.0, 20.0, 10.0, 0.2, {0.1, 0.0, 0.0}));
   TriplaneDecoder d;
   {
     torch::NoGradGuard g;
@@ -170,7 +170,7 @@ TEST(HardCases, BatchOneAndEightAreIndependent) {
   TriplaneDecoder d;
   const torch::Tensor planes = RandomPlanes(8);
   Cameras cams = FrontalCameras(8);
-  for (int i = 0; i < 8; ++i) cams.cam2world[i].copy_(OrbitCam2World({-35.0 + 10.0 * i, 5.0 * (i % 3) - 5.0}));
+  for (int i = 0; i < 8; ++i) cams.cam2world[i].copy_(OrbitCam2World({-35.0 + 10.0 * i, 5.0 - 5.0 * (i % 3)}));
   const RenderOptions o = Small();
   const RenderOutput all = RenderTriplanes(planes, Decode(d), cams, o);
   ExpectValidOutputs(all, o, "batch 8");
@@ -257,7 +257,7 @@ TEST(Gradients, ThroughPlaneSamplingDecoderAndMarcher) {
   o.num_coarse = 10;
   o.num_importance = 0;  // importance positions are not differentiated (as published)
   Cameras cams = FrontalCameras(1, kF64);
-  cams.cam2world[0].copy_(OrbitCam2World({15.0, 10.0}, kF64));
+  cams.cam2world[0].copy_(OrbitCam2World({15.0, -10.0}, kF64));
   const torch::Tensor proj_f = torch::randn({1, 3, 2, 2}, kF64);
   const torch::Tensor proj_d = torch::randn({1, 1, 2, 2}, kF64);
   const auto loss = [&] {

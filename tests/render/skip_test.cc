@@ -326,7 +326,7 @@ TEST(RenderSkips, BundledModel) {
             << " s, render " << c.render_size << "^2, " << c.num_coarse << " + " << c.num_importance << " samples"
             << std::endl;
   for (double yaw : {0.0, 30.0}) {
-    OrbitPose pose;
+    ViewPose pose;
     pose.yaw = yaw;
     const Cameras cams{OrbitCam2World(pose).unsqueeze(0), DefaultIntrinsics().unsqueeze(0)};
     const auto render_with = [&](bool skips) {

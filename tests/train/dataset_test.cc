@@ -13,6 +13,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "common/tiny_dataset.h"
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
@@ -74,16 +75,7 @@ TinyInputs MakeInputs(const fs::path& dir) {
   return in;
 }
 
-DatasetBuildOptions TinyOptions(const fs::path& out) {
-  DatasetBuildOptions o;
-  o.out_dir = out.string();
-  o.size = 128;
-  o.clip_frames = 6;
-  o.clip_pairs = 20;
-  o.val_identities = 0;
-  o.print_progress = false;
-  return o;
-}
+DatasetBuildOptions TinyOptions(const fs::path& out) { return avatar::testing::TinyDatasetOptions(out, 0, 20); }
 
 json Load(const fs::path& p) { return json::parse(ReadFileBytes(p)); }
 

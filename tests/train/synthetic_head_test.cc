@@ -22,10 +22,11 @@ using morphable::CameraLabel;
 
 const morphable::MorphableModel& Model() { return morphable::LoadDefaultModel(DataPaths::Resolve()); }
 
+// The camera at `yaw` to the side and `pitch` above (the head tilted down by `pitch`).
 CameraLabel Orbit(double yaw, double pitch) {
-  render::OrbitPose p;
+  render::ViewPose p;
   p.yaw = yaw;
-  p.pitch = pitch;
+  p.pitch = -pitch;
   return morphable::LabelFromTensor(render::LabelsFromCameras(
       {render::OrbitCam2World(p).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)}));
 }

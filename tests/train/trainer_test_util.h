@@ -62,9 +62,9 @@ inline TrainSample MakeSample(const ModelConfig& c, int64_t variant) {
   t.source = torch::cat({(xx * 0.5 + shift) * disk, (yy * 0.5) * disk, disk * 0.6 - 0.3}, 0) * disk + (disk - 1);
   t.source_eye_mouth = ((yy.abs() < 0.1) * (xx.abs() < 0.3)).to(torch::kFloat32);
   t.source_label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-  render::OrbitPose pose;
+  render::ViewPose pose;  // The camera 12 degrees to the side and 4 above.
   pose.yaw = 12;
-  pose.pitch = 4;
+  pose.pitch = -4;
   t.target_label =
       render::LabelsFromCameras({render::OrbitCam2World(pose).unsqueeze(0), render::DefaultIntrinsics().unsqueeze(0)})[0];
   t.target_matte = disk;
