@@ -304,17 +304,20 @@ std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch
   std::map<std::string, torch::Tensor> terms;
   const torch::Tensor tc = model_->CanonicalPlanes(b.source);
   torch::Tensor largest = tc;
+  CheckCancel();
   if (recon) {
     terms["canonical"] = ImageLoss(model_->Render(tc, target_cam, 0, options_.deterministic_render).rgb, target,
                                    perceptual_, options_.perceptual_weight)
                              .mean();
     if (with_expression) {
+      CheckCancel();
       const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
       largest = tce;
       terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, options_.deterministic_render).rgb, target,
                                       perceptual_, options_.perceptual_weight)
                                 .mean();
       if (full) {
+        CheckCancel();
         const torch::Tensor tp =
             model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
         const torch::Tensor tcep = tce + tp;
@@ -326,6 +329,7 @@ std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch
     }
   }
   if (neutral && options_.neutral_weight > 0) {
+    CheckCancel();
     const torch::Tensor ic_source = model_->Render(tc, source_cam, 0, options_.deterministic_render).rgb;
     terms["neutral"] =
         options_.neutral_weight *
@@ -361,7 +365,12 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   r.loss = total.item<double>();
   bool ok = std::isfinite(r.loss);
   if (!ok) r.skip_reason = "non-finite loss";
+  CheckCancel();
   if (ok) total.backward();
+  if (!reducer_ && cancel_ != nullptr && cancel_->IsCancelled()) {
+    for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+    cancel_->ThrowIfCancelled();
+  }
   if (reducer_) {
     // Data parallelism: the gradients and reported losses averaged over the ranks, so that the
     // checks and the update below are the same on every rank.
@@ -573,6 +582,10 @@ bool StageOneTrainer::AllFinite() const {
 }
 
 void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source) const {
+  SaveStateAt(path, source != nullptr ? source->State() : nlohmann::json());
+}
+
+void StageOneTrainer::SaveStateAt(const fs::path& path, const nlohmann::json& data_cursor) const {
   if (!AllFinite())
     throw InvalidInput(path.string() + ": not written: the training state has a non-finite tensor");
   TensorArchive archive;
@@ -587,7 +600,7 @@ void StageOneTrainer::SaveState(const fs::path& path, const BatchSource* source)
                   {"param_steps", steps},
                   {"stage", options_.stage},
                   {"sr_trained_before", sr_trained_before_},
-                  {"data", source != nullptr ? source->State() : nlohmann::json()}};
+                  {"data", data_cursor}};
   for (const auto& item : model_->named_parameters(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
   for (const auto& item : model_->named_buffers(true)) archive.tensors.emplace_back("w/" + item.key(), item.value());
   StoreAdamMoments(archive, names_, exp_avg_, exp_avg_sq_, "m/", "v/");
@@ -786,9 +799,15 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   const auto start = Clock::now();
   auto last_save = start;
   auto elapsed = [](Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); };
+  // The source's cursor before the batch in flight (one process: a step can be cancelled).
+  nlohmann::json cursor_before;
+  bool cancelled_in_step = false;
   auto save = [&] {
     if (!lead) return;
-    trainer.SaveState(state, &source);
+    if (cancelled_in_step)
+      trainer.SaveStateAt(state, cursor_before);
+    else
+      trainer.SaveState(state, &source);
     last_save = Clock::now();
     if (options.on_state_written) options.on_state_written(trainer.step());
   };
@@ -803,6 +822,12 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
   double mean_step = 0.0;
   int64_t timed = 0;
   result.stopped_by = "steps";
+  // A cancel inside a step (one process only), undone when this run ends however it ends.
+  struct CancelScope {
+    StageOneTrainer& t;
+    CancelScope(StageOneTrainer& trainer, const RunContext* ctx) : t(trainer) { t.SetCancelContext(ctx); }
+    ~CancelScope() { t.SetCancelContext(nullptr); }
+  } cancel_scope(trainer, reducer == nullptr ? &ctx : nullptr);
   try {
     while (trainer.step() < options.steps) {
       bool out_of_time = options.hours > 0 && elapsed(start) >= options.hours * 3600.0;
@@ -818,9 +843,16 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
         break;
       }
       ctx.ThrowIfCancelled();
+      if (reducer == nullptr) cursor_before = source.State();
       const TrainBatch batch = source.Next();
       if (lead && options.on_samples && sample_batch.size() == 0) sample_batch = FirstPairs(batch, 4);
-      const StepResult r = trainer.Step(batch);
+      StepResult r;
+      try {
+        r = trainer.Step(batch);
+      } catch (const Cancelled&) {
+        cancelled_in_step = true;  // Nothing of this batch was applied: the state points at it.
+        throw;
+      }
       ++timed;
       mean_step += (r.seconds - mean_step) / static_cast<double>(std::min<int64_t>(timed, 20));
       // Samples of the global batch (every rank's shard) per second.

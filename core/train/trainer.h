@@ -223,6 +223,9 @@ class StageOneTrainer {
   // State files (see the header comment). Save throws InvalidInput on a non-finite tensor (and
   // writes nothing); Load throws Io / ModelLoad and checks that the model config matches.
   void SaveState(const std::filesystem::path& path, const BatchSource* source = nullptr) const;
+  // The same with the data cursor given (a BatchSource::State()), e.g. the one from before a
+  // batch whose step was cancelled, so that a resume trains on that batch.
+  void SaveStateAt(const std::filesystem::path& path, const nlohmann::json& data_cursor) const;
   void LoadState(const std::filesystem::path& path, BatchSource* source = nullptr);
   // Weights-only model checkpoint (LoadModelCheckpoint reads it). Throws on non-finite weights.
   // half_precision: float16 shipping weights (half the size; loads into the float32 model).
@@ -234,6 +237,11 @@ class StageOneTrainer {
   // decision and update. RunTraining then broadcasts rank 0's weights at the start and only rank
   // 0 writes the state, log, samples and weights. Null: one process.
   void SetGradientReducer(std::shared_ptr<GradientReducer> reducer) { reducer_ = std::move(reducer); }
+  // One process: a stage-I Step checks `ctx` between its renders and before the update, and a
+  // cancel throws Cancelled with the weights, the optimiser and the step as they were (so a
+  // cancel waits for one render, not a whole step). RunTraining sets it for its run without a
+  // reducer (ranks must stop together, at a step boundary); null = never.
+  void SetCancelContext(const RunContext* ctx) { cancel_ = ctx; }
   GradientReducer* gradient_reducer() const { return reducer_.get(); }
   // Rank 0's weights, buffers and optimiser moments to every rank (the discriminator's too);
   // throws InvalidInput when the ranks are not at the same step (e.g. a state resumed by only
@@ -252,7 +260,11 @@ class StageOneTrainer {
 
  private:
   bool AllFinite() const;
+  void CheckCancel() const {
+    if (cancel_ != nullptr) cancel_->ThrowIfCancelled();
+  }
   StepResult StepStageTwo(const TrainBatch& batch);
+  const RunContext* cancel_ = nullptr;
   TrainerOptions options_;
   torch::Device device_;
   GohaModel model_;

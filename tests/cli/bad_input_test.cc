@@ -24,6 +24,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <iostream>
 #include <map>
 #include <random>
 #include <set>
@@ -700,6 +701,8 @@ TEST(BadInputCorpus, HasAtLeastEightyFilesOverEveryCommand) {
   files.erase("valid.ckpt");
   files.erase("valid.avatar");
   EXPECT_GE(files.size(), 80u) << ::testing::PrintToString(files);
+  std::cout << "bad-input corpus: " << files.size() << " files, " << AllCases().size() << " cases over "
+            << commands.size() << " commands\n";
   for (const char* command : {"view", "analyze", "fit", "reconstruct", "render", "animate", "dataset", "train", "eval"})
     EXPECT_EQ(commands.count(command), 1u) << command;
   // Case names are unique (gtest needs that) and files are named once.
