@@ -28,6 +28,7 @@
 #include "core/pipeline/synthetic_head.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
+#include "core/util/progress_line.h"
 
 namespace avatar {
 namespace {
@@ -72,20 +73,22 @@ class ProgressMeter {
     const double per_item = computed_ > 0 ? elapsed / computed_ : 0.0;
     const double eta = per_item * std::max(0, total_ - done_);
     if (print_) {
-      std::cerr << "\r[dataset] " << std::min(done_, total_) << "/" << total_ << " items, "
-                << std::fixed << std::setprecision(0) << elapsed << " s elapsed, ETA " << eta << " s  "
-                << what.substr(0, 40) << std::string(8, ' ') << std::flush;
+      std::ostringstream text;
+      text << "[dataset] " << std::min(done_, total_) << "/" << total_ << " items, " << std::fixed
+           << std::setprecision(0) << elapsed << " s elapsed, ETA " << eta << " s  " << what.substr(0, 40);
+      line_.Update(text.str());
     }
     ctx_.Report(kItemStage, static_cast<double>(done_) / total_, what);
   }
   void Finish() {
-    if (print_) std::cerr << "\n";
+    if (print_) line_.Finish();
   }
 
  private:
   using Clock = std::chrono::steady_clock;
   RunContext& ctx_;
   bool print_;
+  ProgressLine line_ = ProgressLine::ForStderr();
   int total_;
   int done_ = 0;
   int computed_ = 0;

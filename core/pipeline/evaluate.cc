@@ -24,6 +24,7 @@
 #include "core/train/metrics.h"
 #include "core/train/perceptual.h"
 #include "core/util/error.h"
+#include "core/util/progress_line.h"
 #include "core/util/timer.h"
 
 namespace avatar {
@@ -490,6 +491,7 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
   json per_pair = json::array();
 
   const Timer loop_timer;
+  ProgressLine progress_line = ProgressLine::ForStderr();
   size_t done = 0;
   for (size_t begin = 0; begin < chosen.size(); begin += options.batch_size) {
     ctx.ThrowIfCancelled();
@@ -601,12 +603,14 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     const double fraction = static_cast<double>(done) / static_cast<double>(chosen.size());
     ctx.Report("evaluate", fraction, std::to_string(done) + "/" + std::to_string(chosen.size()) + " pairs");
     if (options.print_progress) {
-      std::cerr << "\reval: " << done << "/" << chosen.size() << " pairs (" << std::fixed << std::setprecision(0)
-                << 100.0 * fraction << "%), " << Fixed(elapsed / static_cast<double>(done), 2) << " s/pair, elapsed "
-                << Duration(elapsed) << ", ETA " << Duration(eta) << "   " << std::flush;
+      std::ostringstream text;
+      text << "eval: " << done << "/" << chosen.size() << " pairs (" << std::fixed << std::setprecision(0)
+           << 100.0 * fraction << "%), " << Fixed(elapsed / static_cast<double>(done), 2) << " s/pair, elapsed "
+           << Duration(elapsed) << ", ETA " << Duration(eta);
+      progress_line.Update(text.str());
     }
   }
-  if (options.print_progress) std::cerr << "\n";
+  if (options.print_progress) progress_line.Finish();
   ctx.ThrowIfCancelled();
 
   for (const auto& r : rows) report.rows.push_back(Average(r));

@@ -13,6 +13,7 @@
 #include "core/train/gan.h"
 #include "core/util/error.h"
 #include "core/util/options.h"
+#include "core/util/progress_line.h"
 #include "core/util/timer.h"
 
 namespace avatar::train {
@@ -794,6 +795,7 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
     if (!log) throw Io(LogPath(options.out_dir).string() + ": cannot open the training log");
   }
   const bool progress = options.progress && lead;
+  ProgressLine progress_line = ProgressLine::ForStderr();
 
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -887,14 +889,14 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       if (options.hours > 0) eta = std::min(eta, options.hours * 3600.0 - elapsed(start));
       if (progress) {
         std::ostringstream p;
-        p << "\rtrain: step " << trainer.step() << "/" << options.steps << "  " << r.phase << "  loss " << std::fixed
+        p << "train: step " << trainer.step() << "/" << options.steps << "  " << r.phase << "  loss " << std::fixed
           << std::setprecision(4) << r.loss << "  " << std::setprecision(2) << mean_step << " s/step  "
           << std::setprecision(1) << samples_per_s << " samples/s  skipped " << trainer.skipped_steps() << "  ETA "
-          << FormatDuration(eta) << "   ";
-        std::cerr << p.str() << std::flush;
+          << FormatDuration(eta);
+        progress_line.Update(p.str());
       }
       if (trainer.bad_in_a_row() >= trainer.options().max_bad_steps) {
-        if (progress) std::cerr << "\n";
+        if (progress) progress_line.Finish();
         save();
         throw InvalidInput("training stopped: " + std::to_string(trainer.bad_in_a_row()) +
                            " steps in a row had a non-finite loss or gradient (last: " + r.skip_reason +
@@ -913,11 +915,11 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       }
     }
   } catch (const Cancelled&) {
-    if (progress) std::cerr << "\n";
+    if (progress) progress_line.Finish();
     save();
     throw;
   }
-  if (progress) std::cerr << "\n";
+  if (progress) progress_line.Finish();
   sample();
   save();
   if (lead) {
