@@ -33,7 +33,7 @@ std::string ModelLoadMessage(Fn fn) {
 TEST(Checkpoint, RoundTripIsBitExact) {
   avatar::testing::TempDir dir;
   torch::manual_seed(10);
-  GohaModel model(ModelConfig::Tiny());
+  GohaModel model(avatar::testing::TinyForTest());
   CheckpointInfo info;
   info.step = 1234;
   info.data_provenance = "unit test";
@@ -72,7 +72,7 @@ TEST(Checkpoint, ArchiveKeepsDtypesAndEmptyTensors) {
 
 TEST(Checkpoint, TruncatedFilesFailCleanlyAtEveryLength) {
   avatar::testing::TempDir dir;
-  GohaModel model(ModelConfig::Tiny());
+  GohaModel model(avatar::testing::TinyForTest());
   const auto path = dir.path() / "m.ckpt";
   SaveModelCheckpoint(path, model, {});
   const std::string bytes = ReadAll(path);
@@ -89,7 +89,7 @@ TEST(Checkpoint, TruncatedFilesFailCleanlyAtEveryLength) {
 
 TEST(Checkpoint, CorruptForeignAndMismatchedFilesFailCleanly) {
   avatar::testing::TempDir dir;
-  GohaModel model(ModelConfig::Tiny());
+  GohaModel model(avatar::testing::TinyForTest());
   const auto path = dir.path() / "m.ckpt";
   SaveModelCheckpoint(path, model, {});
   std::string bytes = ReadAll(path);

@@ -11,6 +11,7 @@
 #include "core/render/camera.h"
 #include "core/render/triplane_sampling.h"
 #include "core/util/error.h"
+#include "model_test_util.h"
 
 namespace avatar {
 namespace {
@@ -60,7 +61,7 @@ TEST(SegFormer, PaperEncoderParameterCountIsMitB0) {
 
 TEST(GohaModel, TinyShapesOfEveryBranch) {
   torch::manual_seed(2);
-  const ModelConfig c = ModelConfig::Tiny();
+  const ModelConfig c = avatar::testing::TinyForTest();
   GohaModel model(c);
   torch::InferenceMode inference;
   const int64_t s = c.image_size, p = c.plane_size();
@@ -85,7 +86,7 @@ TEST(GohaModel, TinyShapesOfEveryBranch) {
 }
 
 TEST(GohaModel, EachAppearancePlaneHasItsOwnUpsampler) {
-  GohaModel model(ModelConfig::Tiny());
+  GohaModel model(avatar::testing::TinyForTest());
   ASSERT_EQ(model->upsamplers.size(), 3u);
   const auto a = model->upsamplers[0]->parameters();
   const auto b = model->upsamplers[1]->parameters();
@@ -96,7 +97,7 @@ TEST(GohaModel, EachAppearancePlaneHasItsOwnUpsampler) {
 
 TEST(GohaModel, EmptyMatteGivesZeroRasterAndFiniteOutput) {
   torch::manual_seed(3);
-  const ModelConfig c = ModelConfig::Tiny();
+  const ModelConfig c = avatar::testing::TinyForTest();
   GohaModel model(c);
   torch::InferenceMode inference;
   const int64_t s = c.image_size;

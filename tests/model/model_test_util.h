@@ -1,13 +1,32 @@
 #pragma once
 // Helpers shared by the model tests.
 
+#include <cstdlib>
 #include <cstring>
+#include <string>
 
 #include <gtest/gtest.h>
 
 #include "core/model/goha_model.h"
 
 namespace avatar::testing {
+
+// The image encoder of the encoder-independent model tests: AVATAR_TEST_ENCODER, else mit_b0.
+// tests/model/CMakeLists.txt runs those tests (GohaModel.*, Checkpoint.*, the gradient test) a
+// second time with AVATAR_TEST_ENCODER=mobilenet_v2 (pretrained, from nsfwjs).
+inline std::string TestEncoder() {
+  const char* e = std::getenv("AVATAR_TEST_ENCODER");
+  return e != nullptr && *e != 0 ? std::string(e) : std::string("mit_b0");
+}
+
+// ModelConfig::Tiny() with TestEncoder().
+inline ModelConfig TinyForTest() {
+  ModelConfig c = ModelConfig::Tiny();
+  c.encoder = TestEncoder();
+  if (c.encoder != "mit_b0") c.name = "tiny-" + c.encoder;
+  c.Validate();
+  return c;
+}
 
 // Every parameter and buffer of `b` equals its namesake in `a` bit for bit (same names, shapes,
 // dtypes and bytes): what a checkpoint round trip must give.

@@ -4,6 +4,7 @@
 
 #include "core/model/goha_model.h"
 #include "core/render/camera.h"
+#include "model_test_util.h"
 
 namespace avatar {
 namespace {
@@ -59,7 +60,7 @@ Losses Forward(GohaModel& model, DualDiscriminator& disc, const Batch& b) {
 
 TEST(Training, GradientsReachEveryModule) {
   torch::manual_seed(20);
-  const ModelConfig c = ModelConfig::Tiny();
+  const ModelConfig c = avatar::testing::TinyForTest();
   GohaModel model(c);
   DualDiscriminator disc(c);
   const Batch b = MakeBatch(c);
@@ -90,7 +91,7 @@ TEST(Training, GradientsReachEveryModule) {
 
 TEST(Training, TinyModelOverfitsOneBatch) {
   torch::manual_seed(21);
-  const ModelConfig c = ModelConfig::Tiny();
+  const ModelConfig c = avatar::testing::TinyForTest();
   GohaModel model(c);
   DualDiscriminator disc(c);
   const Batch b = MakeBatch(c);
