@@ -368,10 +368,7 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   if (!ok) r.skip_reason = "non-finite loss";
   CheckCancel();
   if (ok) total.backward();
-  if (!reducer_ && cancel_ != nullptr && cancel_->IsCancelled()) {
-    for (auto& p : params_) p.mutable_grad() = torch::Tensor();
-    cancel_->ThrowIfCancelled();
-  }
+  CheckCancel();  // Before the update: a cancelled step changes nothing (the next Step clears the gradients).
   if (reducer_) {
     // Data parallelism: the gradients and reported losses averaged over the ranks, so that the
     // checks and the update below are the same on every rank.
