@@ -4,36 +4,16 @@
 // losses on the same batch (backward + update = step - forward), samples/s, peak memory, and the
 // step time as ratios to the tiny batch-1 step and to a GEMM measured right before the case.
 
-#include <algorithm>
-#include <cmath>
-#include <cstdio>
-#include <fstream>
 #include <iostream>
-#include <map>
-#include <memory>
-#include <sstream>
-
-#include <nlohmann/json.hpp>
 
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
-#include "core/io/atomic_file.h"
-#include "core/model/goha_model.h"
-#include "core/model/super_resolution.h"
-#include "core/render/camera.h"
-#include "core/render/renderer.h"
-#include "core/train/losses.h"
-#include "core/train/perceptual.h"
-#include "core/train/trainer.h"
+#include "core/pipeline/train_benchmark.h"
 #include "core/util/error.h"
-#include "core/util/threads.h"
-#include "core/util/timer.h"
 
 namespace avatar::app {
 
 namespace {
-
-constexpr int64_t kGemmSize = 1024;
 
 struct BenchTrainOptions {
   // Comma-separated model configs: tiny, cpu, lite, paper.
@@ -59,6 +39,8 @@ struct BenchTrainOptions {
     v("json", json, "Also write the results to this JSON file");
     common.Visit(v);
   }
+  // The benchmark these options ask for. Throws InvalidOptions for a bad --batches list.
+  TrainBenchmarkOptions Bench() const;
   void Validate() const;
 };
 
@@ -80,305 +62,62 @@ std::vector<int64_t> ParseBatches(const std::string& text) {
   return out;
 }
 
+TrainBenchmarkOptions BenchTrainOptions::Bench() const {
+  TrainBenchmarkOptions b;
+  b.configs = SplitList(configs);
+  b.batches = ParseBatches(batches);
+  b.steps = steps;
+  b.warmup = warmup;
+  b.perceptual = perceptual;
+  b.json = json;
+  b.data_dir = common.data_dir;
+  return b;
+}
+
 void BenchTrainOptions::Validate() const {
-  const auto names = SplitList(configs);
-  AVATAR_CHECK_OPTION(!names.empty()) << "--configs is empty";
-  for (const auto& name : names) {
-    AVATAR_CHECK_OPTION(name == "tiny" || name == "cpu" || name == "lite" || name == "paper")
-        << "unknown config '" << name << "' in --configs (tiny, cpu, lite, paper)";
-  }
-  ParseBatches(batches);
-  AVATAR_CHECK_OPTION(steps >= 1 && steps <= 100) << "--steps must be 1..100, got " << steps;
-  AVATAR_CHECK_OPTION(warmup >= 0 && warmup <= 20) << "--warmup must be 0..20, got " << warmup;
-  AVATAR_CHECK_OPTION(perceptual == "mobilenet" || perceptual == "pyramid" || perceptual == "none")
-      << "--perceptual must be mobilenet, pyramid or none, got '" << perceptual << "'";
+  Bench().Validate();
   common.Validate();
-}
-
-// ---------------------------------------------------------------------------------------------
-// Memory. Linux keeps a resettable high-water mark (VmHWM; writing 5 to /proc/self/clear_refs
-// resets it to the current RSS), so each case gets its own peak. Without it the growth of
-// getrusage's ru_maxrss (the process's lifetime peak) is reported instead.
-
-double StatusMb(const std::string& key) {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind(key + ":", 0) == 0) {
-      std::istringstream fields(line.substr(key.size() + 1));
-      double kb = 0;
-      fields >> kb;
-      return kb / 1024.0;
-    }
-  }
-  return -1.0;
-}
-
-bool ResetPeakRss() {
-  std::ofstream out("/proc/self/clear_refs");
-  if (!out) return false;
-  out << "5";
-  out.flush();
-  return static_cast<bool>(out);
-}
-
-// ---------------------------------------------------------------------------------------------
-// Synthetic batches: an ellipse "head" with smooth colour ramps and a little noise on a black
-// background, a mouth band for the eye/mouth mask, a frontal source camera and a target camera
-// turned by a few degrees. Each call shifts the pattern so that no two batches are equal.
-
-class BenchBatchSource : public train::BatchSource {
- public:
-  BenchBatchSource(int64_t image_size, int64_t batch) : size_(image_size), batch_(batch) {}
-
-  train::TrainBatch Next() override {
-    std::vector<train::TrainSample> samples;
-    for (int64_t i = 0; i < batch_; ++i) samples.push_back(Sample(cursor_ * batch_ + i));
-    ++cursor_;
-    return train::Collate(samples);
-  }
-  nlohmann::json State() const override { return {{"cursor", cursor_}}; }
-  void Restore(const nlohmann::json& state) override { cursor_ = state.at("cursor").get<int64_t>(); }
-
- private:
-  train::TrainSample Sample(int64_t index) const {
-    const int64_t s = size_;
-    const double phase = 0.1 * static_cast<double>(index % 7);
-    const torch::Tensor v = torch::linspace(-1, 1, s).view({1, s, 1}).expand({1, s, s});
-    const torch::Tensor u = torch::linspace(-1, 1, s).view({1, 1, s}).expand({1, s, s});
-    const torch::Tensor head = ((u * u) / 0.42 + (v * v) / 0.55 < 1.0).to(torch::kFloat32);
-    const torch::Tensor mouth = ((v - 0.35).abs() < 0.06) * ((u.abs()) < 0.25);
-    const auto picture = [&](double a, double b) {
-      const torch::Tensor rgb = torch::cat({0.5 + 0.3 * torch::sin(3 * u + a), 0.2 + 0.3 * torch::cos(2 * v + b),
-                                            0.1 * u - 0.2 + 0.05 * torch::randn({1, s, s})},
-                                           0)
-                                    .clamp(-1, 1);
-      return rgb * head + (head - 1);  // black (-1) outside the matte
-    };
-    train::TrainSample t;
-    t.source = picture(phase, 0.0);
-    t.source_matte = head;
-    t.source_eye_mouth = mouth.to(torch::kFloat32);
-    t.source_label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-    render::ViewPose pose;  // The camera to the side and 3 degrees above.
-    pose.yaw = 8.0 + 4.0 * static_cast<double>(index % 3);
-    pose.pitch = -3.0;
-    const render::Cameras target_cam{render::OrbitCam2World(pose).unsqueeze(0),
-                                     render::DefaultIntrinsics().unsqueeze(0)};
-    t.target_label = render::LabelsFromCameras(target_cam)[0];
-    t.target = picture(phase + 0.3, 0.2);
-    t.target_matte = head;
-    t.expression_image = picture(phase, 0.5);
-    t.neutral_image = t.source.clone();
-    t.neutral_mask = head;
-    t.target_expression = torch::zeros({8});
-    t.kind = train::PairKind::kSynthetic;
-    t.identity = index % 5;
-    return t;
-  }
-
-  int64_t size_;
-  int64_t batch_;
-  int64_t cursor_ = 0;
-};
-
-// ---------------------------------------------------------------------------------------------
-// The forward half of StageOneTrainer::Step: the trainer's own LossTerms at its current step
-// (the step's terms, with gradients recorded) -> their sum. The graph is dropped by the caller
-// without a backward pass.
-torch::Tensor ForwardLosses(train::StageOneTrainer& trainer, const train::TrainBatch& batch) {
-  trainer.model()->train();
-  torch::Tensor total;
-  for (const auto& [name, t] : trainer.LossTerms(batch.To(trainer.device()), trainer.step())) {
-    total = total.defined() ? total + t : t;
-  }
-  return total;
-}
-
-struct CaseResult {
-  std::string config;
-  int64_t batch = 0;
-  std::vector<double> step_s, forward_s;
-  double step = 0, forward = 0, backward = 0;
-  double peak_rss_mb = 0, rss_growth_mb = 0;
-  double gemm_gflops = 0;
-  double last_loss = 0;
-  double loss_rel_diff = 0;  // largest |forward loss - step loss| / |step loss|
-  int64_t skipped = 0;
-  bool reference_only = false;  // the tiny batch-1 reference, not asked for
-};
-
-CaseResult RunCase(const std::string& config_name, int64_t batch, const BenchTrainOptions& options,
-                   const train::PerceptualFn& perceptual, bool peak_resettable, RunContext& ctx) {
-  CaseResult r;
-  r.config = config_name;
-  r.batch = batch;
-  // This case's baseline: the GEMM rate right before it (the machine is shared).
-  r.gemm_gflops = MeasureGemmGflops(kGemmSize, 3);
-  const double rss_start = peak_resettable ? StatusMb("VmRSS") : PeakRssMb();
-  if (peak_resettable) ResetPeakRss();
-  {
-    torch::manual_seed(1);
-    const ModelConfig config = ModelConfig::FromName(config_name);
-    GohaModelOptions model_options;
-    model_options.pretrained = false;  // random backbones: the timing does not depend on the weights
-    model_options.data_dir = options.common.data_dir;
-    train::TrainerOptions to;  // the training defaults: every term from step 0
-    train::StageOneTrainer trainer(GohaModel(config, model_options), to, perceptual);
-    BenchBatchSource source(config.image_size, batch);
-    for (int i = 0; i < options.warmup; ++i) {
-      ctx.ThrowIfCancelled();
-      const train::StepResult s = trainer.Step(source.Next());
-      r.skipped += s.skipped ? 1 : 0;
-    }
-    for (int i = 0; i < options.steps; ++i) {
-      ctx.ThrowIfCancelled();
-      const train::TrainBatch b = source.Next();
-      // The step then draws the same random numbers (sample jitter, TV points) as the forward
-      // pass, so both compute the same loss: a check that the forward pass is the step's.
-      at::Generator generator = at::globalContext().defaultGenerator(trainer.device());
-      const torch::Tensor rng_state = generator.get_state();
-      double forward_loss = 0;
-      {
-        Timer timer;
-        const torch::Tensor loss = ForwardLosses(trainer, b);
-        forward_loss = loss.item<double>();  // waits for the value, as the step does
-        r.forward_s.push_back(timer.Seconds());
-        AVATAR_CHECK(std::isfinite(forward_loss))
-            << "bench train: the forward pass of " << config_name << " gave a non-finite loss";
-      }
-      ctx.ThrowIfCancelled();
-      generator.set_state(rng_state);
-      Timer timer;
-      const train::StepResult s = trainer.Step(b);
-      r.step_s.push_back(timer.Seconds());
-      r.skipped += s.skipped ? 1 : 0;
-      r.last_loss = s.loss;
-      r.loss_rel_diff = std::max(r.loss_rel_diff, std::abs(forward_loss - s.loss) / std::max(std::abs(s.loss), 1e-12));
-    }
-  }
-  r.peak_rss_mb = peak_resettable ? StatusMb("VmHWM") : PeakRssMb();
-  r.rss_growth_mb = std::max(0.0, r.peak_rss_mb - rss_start);
-  r.step = Median(r.step_s);
-  r.forward = Median(r.forward_s);
-  r.backward = r.step - r.forward;
-  return r;
-}
-
-train::PerceptualFn MakePerceptual(const BenchTrainOptions& options) {
-  if (options.perceptual == "pyramid") {
-    return [](const torch::Tensor& a, const torch::Tensor& b) { return train::PyramidL1Distance(a, b); };
-  }
-  if (options.perceptual != "mobilenet") return {};
-  PerceptualOptions po;
-  po.data_dir = options.common.data_dir;
-  auto net = std::make_shared<PerceptualLoss>(po);
-  // As `train`: MobileNetV2 wants >= 32 px, smaller renders are upsampled for this term only.
-  return [net](const torch::Tensor& a, const torch::Tensor& b) {
-    if (a.size(2) >= 32) return net->Distance(a, b);
-    return net->Distance(ResizeBilinear(a, 32, 32), ResizeBilinear(b, 32, 32));
-  };
 }
 
 int RunBenchTrainImpl(const BenchTrainOptions& options, RunContext& ctx) {
   options.Validate();
-  const auto configs = SplitList(options.configs);
-  const auto batches = ParseBatches(options.batches);
-  const int threads = ConfiguredThreads() > 0 ? ConfiguredThreads() : ConfigureThreads(options.common.threads);
-  const train::PerceptualFn perceptual = MakePerceptual(options);
-  const bool peak_resettable = ResetPeakRss() && StatusMb("VmHWM") > 0;
-
-  // Every ratio is to the tiny batch-1 step of this run, so that case runs first; it is added
-  // (marked "reference") when not asked for.
-  std::vector<std::pair<std::string, int64_t>> cases;
-  for (const auto& c : configs)
-    for (const int64_t b : batches) cases.emplace_back(c, b);
-  const std::pair<std::string, int64_t> reference_case("tiny", 1);
-  const auto found = std::find(cases.begin(), cases.end(), reference_case);
-  const bool reference_asked = found != cases.end();
-  if (reference_asked) cases.erase(found);
-  cases.insert(cases.begin(), reference_case);
-
-  const double gemm_before = MeasureGemmGflops(kGemmSize, 5);
-  std::cout << "Training benchmark (stage I, StageOneTrainer::Step, every term: I_c, I_c+e, I_c+e+p, neutral, TV): "
-            << threads << " threads, float32, random weights, synthetic batches, perceptual " << options.perceptual
-            << ", median of " << options.steps << " steps after " << options.warmup << " warm-up.\n"
-            << "GEMM peak (fp32 " << kGemmSize << "^3, best of 5): " << Fixed(gemm_before, 1) << " GFLOP/s\n\n"
-            << "| config | batch | step (s) | forward (s) | backward + update (s) | samples/s | peak RSS (MB) | "
-               "RSS growth (MB) | step / tiny b1 | GEMM (GFLOP/s) | step / GEMM |\n"
-            << "|---|---|---|---|---|---|---|---|---|---|---|\n"
-            << std::flush;
-
-  std::vector<CaseResult> results;
-  double reference = 0.0;
-  for (size_t i = 0; i < cases.size(); ++i) {
-    ctx.ThrowIfCancelled();
-    CaseResult r = RunCase(cases[i].first, cases[i].second, options, perceptual, peak_resettable, ctx);
-    r.reference_only = i == 0 && !reference_asked;
-    if (i == 0) reference = r.step;
-    const double gemm_s = 2.0 * kGemmSize * kGemmSize * kGemmSize / (r.gemm_gflops * 1e9);
+  const int64_t n = kTrainBenchmarkGemmSize;
+  TrainBenchmarkListener listener;
+  listener.started = [&](const TrainBenchmarkReport& r) {
+    std::cout << "Training benchmark (stage I, StageOneTrainer::Step, every term: I_c, I_c+e, I_c+e+p, neutral, TV): "
+              << r.threads << " threads, float32, random weights, synthetic batches, perceptual " << options.perceptual
+              << ", median of " << options.steps << " steps after " << options.warmup << " warm-up.\n"
+              << "GEMM peak (fp32 " << n << "^3, best of 5): " << Fixed(r.gemm_before, 1) << " GFLOP/s\n\n"
+              << "| config | batch | step (s) | forward (s) | backward + update (s) | samples/s | peak RSS (MB) | "
+                 "RSS growth (MB) | step / tiny b1 | GEMM (GFLOP/s) | step / GEMM |\n"
+              << "|---|---|---|---|---|---|---|---|---|---|---|\n"
+              << std::flush;
+  };
+  listener.measured = [](const TrainBenchmarkCase& r, double reference) {
+    const double over_gemm = r.StepOverGemm();
     std::cout << "| " << r.config << (r.reference_only ? " (reference)" : "") << " | " << r.batch << " | "
               << Fixed(r.step, 3) << " | " << Fixed(r.forward, 3) << " | " << Fixed(r.backward, 3) << " | "
               << Fixed(static_cast<double>(r.batch) / r.step, 2) << " | " << Fixed(r.peak_rss_mb, 0) << " | "
               << Fixed(r.rss_growth_mb, 0) << " | " << Fixed(r.step / reference, 2) << "x | " << Fixed(r.gemm_gflops, 1)
-              << " | " << Fixed(r.step / gemm_s, r.step / gemm_s < 100 ? 1 : 0) << "x |"
+              << " | " << Fixed(over_gemm, over_gemm < 100 ? 1 : 0) << "x |"
               << (r.skipped > 0 ? " (" + std::to_string(r.skipped) + " non-finite steps skipped)" : "") << std::endl;
-    results.push_back(std::move(r));
-  }
-  const double gemm_after = MeasureGemmGflops(kGemmSize, 5);
-  double worst_diff = 0;
-  for (const auto& r : results) worst_diff = std::max(worst_diff, r.loss_rel_diff);
+  };
+  const TrainBenchmarkReport report = RunTrainBenchmark(options.Bench(), options.common.threads, ctx, listener);
   std::cout
-      << "\nGEMM peak after the run: " << Fixed(gemm_after, 1)
+      << "\nGEMM peak after the run: " << Fixed(report.gemm_after, 1)
       << " GFLOP/s (a large change means the machine was busy).\n"
       << "forward = a forward-only pass of the same loss terms on the same batch (graph recorded, no backward; "
          "the trainer has no split; it drew the step's random numbers and its loss matched the step's to a relative "
          "difference of "
-      << worst_diff << "); backward + update = step - forward (backward, gradient norm, clip, Adam).\n"
-      << "step / GEMM = step time over the time of one fp32 " << kGemmSize << "^3 GEMM at the rate measured "
+      << report.worst_loss_rel_diff << "); backward + update = step - forward (backward, gradient norm, clip, Adam).\n"
+      << "step / GEMM = step time over the time of one fp32 " << n << "^3 GEMM at the rate measured "
       << "right before that case. "
-      << (peak_resettable ? "peak RSS = the process's resident-set high-water mark during the case (VmHWM, "
-                            "reset before it); RSS growth = that peak minus the RSS at the case's start."
-                          : "peak RSS = the process's lifetime peak (getrusage ru_maxrss) after the case; "
-                            "RSS growth = its increase during the case (0 when an earlier case peaked higher).")
+      << (report.peak_resettable ? "peak RSS = the process's resident-set high-water mark during the case (VmHWM, "
+                                   "reset before it); RSS growth = that peak minus the RSS at the case's start."
+                                 : "peak RSS = the process's lifetime peak (getrusage ru_maxrss) after the case; "
+                                   "RSS growth = its increase during the case (0 when an earlier case peaked higher).")
       << "\n";
-
-  if (!options.json.empty()) {
-    nlohmann::json j;
-    j["threads"] = threads;
-    j["perceptual"] = options.perceptual;
-    j["steps"] = options.steps;
-    j["warmup"] = options.warmup;
-    j["gemm_gflops_before"] = gemm_before;
-    j["gemm_gflops_after"] = gemm_after;
-    j["rss_method"] = peak_resettable ? "VmHWM reset per case" : "ru_maxrss";
-    j["reference_step_s"] = reference;
-    nlohmann::json rows = nlohmann::json::array();
-    for (const auto& r : results) {
-      nlohmann::json row;
-      row["config"] = r.config;
-      row["batch"] = r.batch;
-      row["reference_only"] = r.reference_only;
-      row["step_s"] = r.step;
-      row["forward_s"] = r.forward;
-      row["backward_s"] = r.backward;
-      row["samples_per_s"] = static_cast<double>(r.batch) / r.step;
-      row["peak_rss_mb"] = r.peak_rss_mb;
-      row["rss_growth_mb"] = r.rss_growth_mb;
-      row["step_ratio_to_tiny_b1"] = r.step / reference;
-      row["gemm_gflops"] = r.gemm_gflops;
-      row["step_ratio_to_gemm"] = r.step / (2.0 * kGemmSize * kGemmSize * kGemmSize / (r.gemm_gflops * 1e9));
-      row["step_times_s"] = r.step_s;
-      row["forward_times_s"] = r.forward_s;
-      row["last_loss"] = r.last_loss;
-      row["forward_loss_rel_diff"] = r.loss_rel_diff;
-      row["skipped_steps"] = r.skipped;
-      rows.push_back(row);
-    }
-    j["rows"] = rows;
-    WriteBytesAtomically(options.json, j.dump(2) + "\n");
-    std::cout << "Results written to " << options.json << "\n";
-  }
+  if (!report.json_path.empty()) std::cout << "Results written to " << report.json_path << "\n";
   return kExitOk;
 }
 

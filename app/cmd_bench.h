@@ -3,12 +3,14 @@
 // model, ...) is a function that parses its own flags, registered with
 // AVATAR_REGISTER_BENCH_SUBJECT("name", "summary", RunBenchName) in any app source file.
 // Every subject measures this machine's baseline (GEMM peak) in the same run and reports
-// ratios, because the machines are shared and noisy.
+// ratios, because the machines are shared and noisy. The measurements live in core/pipeline
+// (benchmarks.h and the subject's own module); the app files parse flags and print.
 
 #include <string>
 #include <vector>
 
 #include "app/commands.h"
+#include "core/pipeline/benchmarks.h"
 
 namespace avatar::app {
 
@@ -28,29 +30,16 @@ std::vector<BenchSubject> BenchSubjects();
 // Dispatches `bench SUBJECT ...`; returns an exit code.
 int RunBench(const std::vector<std::string>& args);
 
-// Measured fp32 GEMM rate of this machine with the current thread setting: the best of
-// `repeats` n x n x n products (2 n^3 FLOPs each), in GFLOP/s.
-double MeasureGemmGflops(int64_t n = 1024, int repeats = 5);
-
-// Options of `bench render`.
+// Options of `bench render` (the measurement: core/pipeline/benchmarks.h).
 struct BenchRenderOptions {
-  // Comma-separated presets: paper, medium, small, tiny (or "all").
-  std::string presets = "all";
-  // Timed renders per preset (after one warm-up); the median is reported.
-  int repeats = 3;
-  // Cameras rendered together.
-  int batch = 1;
-  // Rays per parallel work item.
-  int chunk_rays = 256;
+  // Presets, repeats, batch, rays per work item.
+  RenderBenchmarkOptions render;
   // Threads, data folder, verbosity.
   CommonOptions common;
 
   template <typename V>
   void Visit(V&& v) {
-    v("presets", presets, "Comma-separated presets: paper,medium,small,tiny or all");
-    v("repeats", repeats, "Timed renders per preset (median reported)");
-    v("batch", batch, "Cameras rendered together");
-    v("chunk_rays", chunk_rays, "Rays per parallel work item");
+    render.Visit(v);
     common.Visit(v);
   }
   void Validate() const;

@@ -2,7 +2,9 @@
 // evaluates a checkpoint on a dataset split (core/pipeline/evaluate.h): the deterministic
 // renders I_c, I_c+e, I_c+e+p (and SR when trained) and the morphable-preview baseline against
 // the targets, with PSNR, SSIM, L1, perceptual, CSIM, AED and APD. Writes OUT/eval.md,
-// OUT/eval.json and OUT/contact.png; Ctrl+C cancels (nothing is written then).
+// OUT/eval.json and OUT/contact.png; Ctrl+C cancels (nothing is written then). Ablation
+// checkpoints (issue 14) are evaluated as they are: T_e from the target's morphable coefficients
+// for expression bases; without an appearance branch the I_c+e+p row is the output I_c+e.
 
 #include <iostream>
 
@@ -49,7 +51,9 @@ int RunEval(const std::vector<std::string>& args) {
                       "Evaluates a network checkpoint on a dataset split: the deterministic renders I_c, I_c+e, "
                       "I_c+e+p (and SR when\nit was trained) and the morphable-preview baseline at each target "
                       "camera, against the target, with PSNR, SSIM,\nL1 and perceptual (full image and within the "
-                      "target matte), CSIM, AED and APD. Writes OUT/eval.md, OUT/eval.json\nand OUT/contact.png.",
+                      "target matte), CSIM, AED and APD. Writes OUT/eval.md, OUT/eval.json\nand OUT/contact.png. "
+                      "Ablation checkpoints (train --no-appearance / --expression-model bases) are named in "
+                      "eval.md;\nwithout an appearance branch the I_c+e+p row is the network's output I_c+e.",
                       &positionals)) {
       return kExitOk;
     }

@@ -6,8 +6,10 @@ function(avatar_target_settings target)
     target_compile_options(${target} PRIVATE -Werror)
   endif()
   if(NOT AVATAR_SANITIZER STREQUAL "none")
-    target_compile_options(${target} PRIVATE -fsanitize=${AVATAR_SANITIZER} -fno-omit-frame-pointer)
-    target_link_options(${target} PRIVATE -fsanitize=${AVATAR_SANITIZER})
+    # "address+undefined" (scripts/test-sanitized) is -fsanitize=address,undefined.
+    string(REPLACE "+" "," sanitizers "${AVATAR_SANITIZER}")
+    target_compile_options(${target} PRIVATE -fsanitize=${sanitizers} -fno-omit-frame-pointer)
+    target_link_options(${target} PRIVATE -fsanitize=${sanitizers})
   endif()
 endfunction()
 

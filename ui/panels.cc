@@ -15,9 +15,7 @@
 #include <QSpinBox>
 #include <QVBoxLayout>
 
-#include <nlohmann/json.hpp>
-
-#include "core/io/atomic_file.h"
+#include "core/pipeline/expression_preset.h"
 #include "core/util/error.h"
 
 namespace avatar::ui {
@@ -300,31 +298,15 @@ void ExpressionPanel::resetToNeutral() {
 }
 
 void ExpressionPanel::savePreset(const QString& path) const {
-  nlohmann::json j;
-  j["expression"] = nlohmann::json::object();
-  for (const auto& [name, slider] : sliders_) j["expression"][name.toStdString()] = slider->value() / 100.0;
-  WriteBytesAtomically(path.toStdString(), j.dump(2) + "\n");
+  std::map<std::string, double> controls;
+  for (const auto& [name, slider] : sliders_) controls[name.toStdString()] = slider->value() / 100.0;
+  SaveExpressionPreset(path.toStdString(), controls);
 }
 
 void ExpressionPanel::loadPreset(const QString& path) {
-  const std::string text = ReadFileBytes(path.toStdString());
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::exception& e) {
-    throw InvalidInput("expression preset '" + path.toStdString() + "' is not valid JSON: " + e.what());
-  }
-  AVATAR_CHECK_INPUT(j.is_object() && j.contains("expression") && j["expression"].is_object())
-      << "expression preset '" << path.toStdString() << "' must be {\"expression\": {\"smile\": 0.5, ...}}";
-  FrameExpression e;
-  for (auto it = j["expression"].begin(); it != j["expression"].end(); ++it) {
-    AVATAR_CHECK_INPUT(it->is_number()) << "expression preset '" << path.toStdString() << "': '" << it.key()
-                                        << "' must be a number in [0,1]";
-    AVATAR_CHECK_INPUT(sliders_.count(QString::fromStdString(it.key())) == 1)
-        << "expression preset '" << path.toStdString() << "': unknown control '" << it.key() << "'";
-    e.controls[it.key()] = std::clamp(it->get<float>(), 0.0f, 1.0f);
-  }
-  setExpression(e);
+  std::vector<std::string> known;
+  for (const auto& [name, slider] : sliders_) known.push_back(name.toStdString());
+  setExpression(LoadExpressionPreset(path.toStdString(), known));
   emit expressionChanged();
 }
 

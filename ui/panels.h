@@ -106,7 +106,8 @@ class ExpressionPanel : public QWidget {
   void setExpression(const FrameExpression& expression);
   QSlider* slider(const QString& name) const;
 
-  // Presets: JSON {"expression": {"smile": 0.5, ...}}. Throw Io / InvalidInput.
+  // Presets: JSON {"expression": {"smile": 0.5, ...}}, read and written by
+  // core/pipeline/expression_preset.h (only this panel's controls are accepted). Throw Io / InvalidInput.
   void savePreset(const QString& path) const;
   void loadPreset(const QString& path);
 

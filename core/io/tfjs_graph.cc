@@ -42,12 +42,12 @@ const std::map<std::string, int>& OpArity() {
 std::string Base64Decode(const std::string& in) {
   static const std::string kChars = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;
-  int val = 0;
+  uint32_t val = 0;  // unsigned: the bits shifted out on the left are simply dropped
   int bits = -8;
   for (char c : in) {
     const auto pos = kChars.find(c);
     if (pos == std::string::npos) break;  // '=' padding or junk ends the data
-    val = (val << 6) + static_cast<int>(pos);
+    val = (val << 6) + static_cast<uint32_t>(pos);
     bits += 6;
     if (bits >= 0) {
       out.push_back(static_cast<char>((val >> bits) & 0xFF));
@@ -300,7 +300,8 @@ void TfjsGraph::Impl::LoadWeights(const json& manifest) {
       torch::Tensor t;
       auto copy = [&](torch::ScalarType st) {
         auto raw = torch::empty({numel}, torch::TensorOptions().dtype(st));
-        std::memcpy(raw.data_ptr(), ptr, size);
+        // A weight with a zero dimension holds no bytes (and an empty tensor has no storage).
+        if (size > 0) std::memcpy(raw.data_ptr(), ptr, size);
         return raw;
       };
       if (stored == "float32") t = copy(torch::kFloat32);

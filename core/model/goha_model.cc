@@ -1,5 +1,6 @@
 #include "core/model/goha_model.h"
 
+#include <cmath>
 #include <set>
 #include <sstream>
 
@@ -112,6 +113,12 @@ GohaModelImpl::GohaModelImpl(const ModelConfig& config, const GohaModelOptions& 
       register_module("expression_head", Embed2Plane(c.decoder_dim, c.head_width, c.head_mid_width, c.plane_channels));
   decoder = register_module("decoder", TriplaneDecoder(c.plane_channels, c.decoder_hidden, c.plane_channels));
   super_resolution = register_module("super_resolution", SuperResolution(c));
+  if (c.expression_bases()) {
+    // Zero bases: a network initialised from encoder weights starts as R(T_c + T_p).
+    const int64_t k = c.expression_coefficients, p = c.plane_size();
+    expression_bases = register_parameter("expression_bases", torch::zeros({k, 3, c.plane_channels, p, p}));
+    expression_std = register_buffer("expression_std", torch::ones({k}));
+  }
 }
 
 torch::Tensor GohaModelImpl::Normalise(const torch::Tensor& rgb) const {
@@ -138,9 +145,51 @@ torch::Tensor GohaModelImpl::CanonicalPlanes(const torch::Tensor& image) {
 }
 
 torch::Tensor GohaModelImpl::ExpressionPlanes(const torch::Tensor& expression_image) {
+  AVATAR_CHECK_INPUT(!config_.expression_bases())
+      << "model config '" << config_.name
+      << "' has the linear expression branch (expression_model bases): its expression planes come from "
+         "morphable expression coefficients (ExpressionPlanesFromCoefficients), not from I_exp";
   CheckImage(expression_image, config_.image_size, "expression image I_exp");
   ++counters_.expression_encoder;
   return expression_head->forward(expression_encoder->forward(Normalise(expression_image)));
+}
+
+torch::Tensor MixExpressionBases(const torch::Tensor& weights, const torch::Tensor& bases) {
+  AVATAR_CHECK_INPUT(weights.dim() == 2 && bases.dim() >= 1 && weights.size(1) == bases.size(0))
+      << "expression bases: weights must be [B,K] for " << bases.size(0) << " bases, got " << weights.sizes();
+  std::vector<int64_t> shape = bases.sizes().vec();
+  shape[0] = weights.size(0);
+  return torch::matmul(weights, bases.reshape({bases.size(0), -1})).view(shape);
+}
+
+torch::Tensor GohaModelImpl::ExpressionPlanesFromCoefficients(const torch::Tensor& coefficients) {
+  AVATAR_CHECK_INPUT(config_.expression_bases())
+      << "model config '" << config_.name
+      << "' has the expression encoder E_e (expression_model encoder): it takes I_exp, not coefficients";
+  const int64_t k = config_.expression_coefficients;
+  AVATAR_CHECK_INPUT(coefficients.defined() && coefficients.dim() == 2 && coefficients.size(1) == k)
+      << "expression coefficients must be [B," << k << "] (the morphable model's expression components), got "
+      << (coefficients.defined() ? coefficients.sizes() : torch::IntArrayRef{});
+  ++counters_.expression_encoder;
+  const torch::Tensor w = coefficients.to(expression_bases.options()) / expression_std;
+  return MixExpressionBases(w, expression_bases);  // [B,3,C,P,P]
+}
+
+torch::Tensor GohaModelImpl::ExpressionPlanesFor(const torch::Tensor& expression_image,
+                                                 const torch::Tensor& coefficients) {
+  return config_.expression_bases() ? ExpressionPlanesFromCoefficients(coefficients)
+                                    : ExpressionPlanes(expression_image);
+}
+
+void GohaModelImpl::SetExpressionStd(const std::vector<float>& std_per_coefficient) {
+  AVATAR_CHECK_INPUT(config_.expression_bases()) << "SetExpressionStd: the model has no expression bases";
+  AVATAR_CHECK_INPUT(static_cast<int64_t>(std_per_coefficient.size()) == config_.expression_coefficients)
+      << "SetExpressionStd: " << std_per_coefficient.size() << " values for " << config_.expression_coefficients
+      << " expression coefficients (the morphable model and the config disagree)";
+  for (float v : std_per_coefficient)
+    AVATAR_CHECK_INPUT(std::isfinite(v) && v > 0) << "SetExpressionStd: every std must be finite and > 0, got " << v;
+  torch::NoGradGuard no_grad;
+  expression_std.copy_(torch::tensor(std_per_coefficient, torch::kFloat32).to(expression_std.options()));
 }
 
 render::RenderOptions GohaModelImpl::RenderOptionsFor(int resolution, bool deterministic) const {
@@ -162,7 +211,28 @@ render::RenderOutput GohaModelImpl::RenderWith(const torch::Tensor& planes, cons
   ++counters_.renders;
   const render::PointDecoder decode = [this](const torch::Tensor& f) { return decoder->forward(f); };
   if (inference_skips) options.EnableInferenceSkips();
+  if (options.skip_empty_space && options.occupancy == nullptr && !torch::GradMode::is_enabled()) {
+    options.occupancy = OccupancyGridFor(planes);
+  }
   return render::RenderTriplanes(planes, decode, cameras, options, c10::nullopt, profile);
+}
+
+render::DensityMlp DecoderDensityMlp(const TriplaneDecoder& decoder) {
+  torch::NoGradGuard no_grad;
+  const double in = static_cast<double>(decoder->fc1_weight.size(1));
+  const double hidden = static_cast<double>(decoder->fc1_weight.size(0));
+  // The same equalised-learning-rate gains as TriplaneDecoderImpl::forward.
+  render::DensityMlp mlp;
+  mlp.w1 = decoder->fc1_weight.detach() * (1.0 / std::sqrt(in));
+  mlp.b1 = decoder->fc1_bias.detach().clone();
+  mlp.w2 = decoder->fc2_weight.detach()[0] * (1.0 / std::sqrt(hidden));
+  mlp.b2 = decoder->fc2_bias.detach()[0].item<double>();
+  return mlp;
+}
+
+std::shared_ptr<const render::OccupancyGrid> GohaModelImpl::OccupancyGridFor(
+    const torch::Tensor& planes, const render::OccupancyGridOptions& options) const {
+  return render::BuildOccupancyGrid(planes.detach(), DecoderDensityMlp(decoder), RenderOptionsFor().box_warp, options);
 }
 
 AppearanceOutput GohaModelImpl::AppearancePlanes(const torch::Tensor& source, const torch::Tensor& eye_mouth,
@@ -178,6 +248,11 @@ AppearanceOutput GohaModelImpl::AppearancePlanes(const torch::Tensor& source, co
       << "matte must be [B,1," << s << "," << s << "], got " << matte.sizes();
   AVATAR_CHECK_INPUT(cameras.batch() == b) << "need one source camera per image";
   AppearanceOutput out;
+  if (!config_.appearance_branch) {
+    // The w/o-appearance ablation: T_p = 0, nothing runs.
+    out.planes = torch::zeros_like(canonical_planes).detach();
+    return out;
+  }
   {
     torch::NoGradGuard no_grad;
     const render::RenderOutput canonical = Render(canonical_planes.detach(), cameras, static_cast<int>(g));
@@ -224,13 +299,20 @@ std::vector<FlopEntry> GohaModelImpl::Flops() const {
   const double per_sample = decoder->FlopsPerPoint() * (config_.num_coarse + config_.num_importance);
   add_encoder("E_c", canonical_encoder);
   out.push_back({"E_c/embed2plane", canonical_head->Flops(g, g)});
-  out.push_back({"appearance/depth_render", per_sample * g * g});
-  add_encoder("E_p", appearance_encoder);
-  double ups = 0;
-  for (const auto& u : upsamplers) ups += u->Flops(g, g);
-  out.push_back({"appearance/upsamplers", ups});
-  add_encoder("E_e", expression_encoder);
-  out.push_back({"E_e/embed2plane", expression_head->Flops(g, g)});
+  if (config_.appearance_branch) {
+    out.push_back({"appearance/depth_render", per_sample * g * g});
+    add_encoder("E_p", appearance_encoder);
+    double ups = 0;
+    for (const auto& u : upsamplers) ups += u->Flops(g, g);
+    out.push_back({"appearance/upsamplers", ups});
+  }
+  if (config_.expression_bases()) {
+    const double p = static_cast<double>(config_.plane_size());
+    out.push_back({"expression_bases", 2.0 * config_.expression_coefficients * 3 * config_.plane_channels * p * p});
+  } else {
+    add_encoder("E_e", expression_encoder);
+    out.push_back({"E_e/embed2plane", expression_head->Flops(g, g)});
+  }
   out.push_back({"render", per_sample * config_.render_size * config_.render_size});
   for (const auto& e : super_resolution->Flops()) out.push_back({"SR/" + e.module, e.flops});
   return out;

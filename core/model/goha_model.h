@@ -8,6 +8,8 @@
 //   P = o + D_s d for foreground rays (matte >= 0.5), T_p = per-plane Upsampler(Rasterize(P, F))
 //   T_e = Embed2Plane_e(E_e(I_exp))                                expression planes
 //   I = R_V(T_c + T_p + T_e, C_t),  I_hr = SR(I)
+// Ablation variants (ModelConfig): appearance_branch false -> T_p = 0; expression_model "bases"
+// -> T_e = sum_k (beta_k / std_k) B_k from the target's morphable expression coefficients beta.
 // Depth for lifting comes from T_c alone, as the paper describes (the release uses T_c + T_e),
 // so T_p depends only on the source and is cached per avatar.
 //
@@ -18,6 +20,7 @@
 
 #include <atomic>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -28,6 +31,7 @@
 #include "core/model/model_config.h"
 #include "core/model/super_resolution.h"
 #include "core/model/triplane_decoder.h"
+#include "core/render/occupancy_grid.h"
 #include "core/render/renderer.h"
 
 namespace avatar {
@@ -103,11 +107,22 @@ class GohaModelImpl : public torch::nn::Module {
 
   // I_s [B,3,S,S] in [-1,1] -> T_c [B,3,C,P,P].
   torch::Tensor CanonicalPlanes(const torch::Tensor& image);
-  // I_exp [B,3,S,S] in [-1,1] -> T_e [B,3,C,P,P].
+  // I_exp [B,3,S,S] in [-1,1] -> T_e [B,3,C,P,P] (expression_model "encoder"; a "bases" model
+  // throws InvalidInput: it takes coefficients).
   torch::Tensor ExpressionPlanes(const torch::Tensor& expression_image);
+  // Morphable expression coefficients beta [B,K] -> T_e = sum_k (beta_k / std_k) B_k [B,3,C,P,P]
+  // (expression_model "bases"; an "encoder" model throws InvalidInput).
+  torch::Tensor ExpressionPlanesFromCoefficients(const torch::Tensor& coefficients);
+  // T_e by this model's expression_model: from I_exp (encoder) or from beta (bases); the other
+  // input may be undefined.
+  torch::Tensor ExpressionPlanesFor(const torch::Tensor& expression_image, const torch::Tensor& coefficients);
+  // Sets std_k of the bases' coefficient scaling (K positive values; a fresh bases model has
+  // ones). Trainers set it once from the morphable model that made the data; files keep it.
+  void SetExpressionStd(const std::vector<float>& std_per_coefficient);
   // source [B,3,S,S] in [-1,1], eye_mouth [B,1,S,S] (1 = eyes/brows/lips/inner mouth), matte
   // [B,1,S,S] in [0,1], T_c, source cameras (B) -> T_p and intermediates. The canonical render
   // and depth are inputs of E_p and carry no gradient; gradients reach E_p and the upsamplers.
+  // Without an appearance branch (config.appearance_branch false) only `planes` is set: zeros.
   AppearanceOutput AppearancePlanes(const torch::Tensor& source, const torch::Tensor& eye_mouth,
                                     const torch::Tensor& matte, const torch::Tensor& canonical_planes,
                                     const render::Cameras& cameras);
@@ -120,9 +135,16 @@ class GohaModelImpl : public torch::nn::Module {
                                   render::RenderOptions options, render::RenderProfile* profile = nullptr);
   // Render options of this config at `resolution` (0 = config.render_size).
   render::RenderOptions RenderOptionsFor(int resolution = 0, bool deterministic = true) const;
-  // Render() turns on RenderOptions::EnableInferenceSkips (early termination, missed rays) when
-  // set; they act only with grad mode off. Off by default (training); the session turns it on.
+  // Render() turns on RenderOptions::EnableInferenceSkips (early termination, missed rays, empty
+  // space) when set; they act only with grad mode off. Off by default (training and
+  // reconstruction); the session passes its own per-frame options instead (session.h).
   bool inference_skips = false;
+  // The occupancy grid of planes [B,3,C,P,P] under this model's decoder (empty-space skipping;
+  // core/render/occupancy_grid.h). RenderWith builds one when options ask for empty-space
+  // skipping without a grid and grad mode is off; callers that render the same planes often
+  // (the session) build it once and pass it in RenderOptions::occupancy.
+  std::shared_ptr<const render::OccupancyGrid> OccupancyGridFor(
+      const torch::Tensor& planes, const render::OccupancyGridOptions& options = {}) const;
   // rgb [B,3,r,r] in [-1,1] -> [B,3,sr_size,sr_size].
   torch::Tensor SuperResolve(const torch::Tensor& rgb);
 
@@ -133,6 +155,9 @@ class GohaModelImpl : public torch::nn::Module {
   std::vector<PlaneUpsampler> upsamplers;
   TriplaneDecoder decoder{nullptr};
   SuperResolution super_resolution{nullptr};
+  // expression_model "bases" only (undefined otherwise): B [K,3,C,P,P] (parameter
+  // "expression_bases", zeros at construction) and std [K] (buffer "expression_std").
+  torch::Tensor expression_bases, expression_std;
 
   // Analytic FLOPs of one forward of every stage at this config, batch 1 (renders use the
   // decoder FLOPs per sample x samples; plane lookups and marching are not counted).
@@ -146,6 +171,13 @@ class GohaModelImpl : public torch::nn::Module {
   mutable ModelCounters counters_;
 };
 TORCH_MODULE(GohaModel);
+
+// sum_k weights[b,k] * bases[k] for weights [B,K] and bases [K,...] -> [B,...] (the linear
+// expression branch's mixing).
+torch::Tensor MixExpressionBases(const torch::Tensor& weights, const torch::Tensor& bases);
+
+// The density part of the decoder with its effective weights (occupancy bounds).
+render::DensityMlp DecoderDensityMlp(const TriplaneDecoder& decoder);
 
 // Parameters of a module (count).
 int64_t CountParameters(const torch::nn::Module& module);

@@ -18,6 +18,10 @@ bool IsPowerOfTwo(int v) { return v > 0 && (v & (v - 1)) == 0; }
 void ModelConfig::Validate() const {
   AVATAR_CHECK_OPTION(encoder == "mit_b0" || encoder == "mobilenet_v2")
       << "model config '" << name << "': encoder must be mit_b0 or mobilenet_v2, got '" << encoder << "'";
+  AVATAR_CHECK_OPTION(expression_model == "encoder" || expression_model == "bases")
+      << "model config '" << name << "': expression_model must be encoder or bases, got '" << expression_model << "'";
+  AVATAR_CHECK_OPTION(expression_coefficients >= 1 && expression_coefficients <= 1024)
+      << "model config '" << name << "': expression_coefficients must be 1..1024, got " << expression_coefficients;
   AVATAR_CHECK_OPTION(encoder_widths.size() == 4 && encoder_depths.size() == 4 && encoder_heads.size() == 4 &&
                       encoder_sr_ratios.size() == 4)
       << "model config '" << name << "': the encoder needs exactly 4 stages";

@@ -11,6 +11,12 @@
 //   tiny  : a few thousand parameters per module, for tests only.
 // All three presets use the mit_b0 encoder; `encoder` = mobilenet_v2 swaps in the pretrained
 // MobileNetV2 (see the field).
+//
+// Ablation variants (issue 14, the paper's Table 4; every preset has the full design):
+//   appearance_branch false   : no appearance planes: T_p = 0, the output is R(T_c + T_e).
+//   expression_model "bases"  : T_e = sum_k (beta_k / std_k) B_k with learned tri-plane bases
+//                               B_k instead of E_e over I_exp (expression_coefficients = K).
+// Files written before these fields existed read as the full design.
 
 #include <string>
 #include <vector>
@@ -66,6 +72,19 @@ struct ModelConfig {
   int sr_style_dim = 512;
   // Upper bound on the discriminator's channels.
   int disc_max_channels = 512;
+  // Appearance branch (E_p, lifting, upsamplers). False = the w/o-appearance ablation: the
+  // modules stay in the network (and its files) but never run and never train;
+  // AppearancePlanes returns zero planes, so every renderer shows R(T_c + T_e).
+  bool appearance_branch = true;
+  // Expression branch: "encoder" (the paper's E_e + Embed2Plane over the morphable render
+  // I_exp) or "bases" (the paper's "linear expression" ablation: T_e = sum_k (beta_k / std_k) B_k,
+  // K = expression_coefficients learned tri-planes [3,C,P,P] mixed by the target's morphable
+  // expression coefficients beta, each divided by its morphable-model std (a buffer of the
+  // network); E_e and its head then stay in the network unused and untrained).
+  std::string expression_model = "encoder";
+  // Number of morphable expression coefficients K the bases take (expression_model "bases";
+  // our morphable model has 26). Unused for "encoder".
+  int expression_coefficients = 26;
 
   template <typename V>
   void Visit(V&& v) {
@@ -91,6 +110,9 @@ struct ModelConfig {
     v("sr_max_channels", sr_max_channels, "SR channel cap");
     v("sr_style_dim", sr_style_dim, "SR style width");
     v("disc_max_channels", disc_max_channels, "Discriminator channel cap");
+    v("appearance_branch", appearance_branch, "Appearance branch (false: the w/o-appearance ablation)");
+    v("expression_model", expression_model, "Expression branch: encoder (E_e over I_exp) or bases (linear)");
+    v("expression_coefficients", expression_coefficients, "Expression coefficients mixing the bases");
   }
 
   // Throws InvalidOptions for inconsistent sizes (4 stages, widths divisible by heads,
@@ -103,6 +125,8 @@ struct ModelConfig {
   int plane_size() const { return image_size / 2; }
   // SR channels at resolution r.
   int SrChannels(int resolution) const;
+  // expression_model == "bases".
+  bool expression_bases() const { return expression_model == "bases"; }
 
   static ModelConfig Paper();
   static ModelConfig Lite();

@@ -291,6 +291,16 @@ std::string Markdown(const EvaluateReport& report, const json& header) {
      << header["checkpoint"]["config"].get<std::string>() << ", step " << header["checkpoint"]["step"].get<int64_t>()
      << ", SR trained: " << (header["checkpoint"]["sr_trained"].get<bool>() ? "yes" : "no") << ", fingerprint "
      << header["checkpoint"]["fingerprint"].get<std::string>() << ")\n";
+  const bool appearance = header["checkpoint"]["appearance_branch"].get<bool>();
+  const bool bases = header["checkpoint"]["expression_model"].get<std::string>() == "bases";
+  if (!appearance || bases) {
+    md << "- ablation:";
+    if (!appearance) md << " no appearance branch (T_p = 0: the I_c+e+p row is the network's output I_c+e);";
+    if (bases)
+      md << " linear expression bases (T_e mixed from " << header["checkpoint"]["expression_coefficients"].get<int>()
+         << " morphable expression coefficients instead of E_e over I_exp);";
+    md << "\n";
+  }
   md << "- data: `" << header["data"].get<std::string>() << "`, split " << header["split"].get<std::string>() << ", "
      << report.pairs << " of " << header["split_pairs"].get<int64_t>() << " pairs (";
   bool first = true;
@@ -454,6 +464,13 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
   rows[1].row = {"canonical", "I_c", true, "", static_cast<int>(res), {}, {}, {}};
   rows[2].row = {"expression", "I_c+e", true, "", static_cast<int>(res), {}, {}, {}};
   rows[3].row = {"full", "I_c+e+p", true, "", static_cast<int>(res), {}, {}, {}};
+  if (!config.appearance_branch) {
+    // The w/o-appearance ablation: T_p = 0, so the network's output (this row, and SR / bicubic
+    // of it) is I_c+e; the row keeps its key and repeats the I_c+e numbers under its own name.
+    rows[3].row.name = "I_c+e+p = I_c+e (no appearance branch)";
+    rows[3].row.note = "the checkpoint has no appearance branch (appearance_branch false): T_p = 0 and the "
+                       "network's output is I_c+e; this row repeats the I_c+e row";
+  }
   rows[4].row = {"sr", "SR(I_c+e+p)", true, "", config.sr_size, {}, {}, {}};
   const bool sr = loaded.info.sr_trained;
   if (!sr) {
@@ -512,11 +529,16 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
     // Neural renders at the target camera (deterministic).
     std::vector<torch::Tensor> renders(kRows);
     const torch::Tensor tc = model->CanonicalPlanes(source);
-    const torch::Tensor tce = tc + model->ExpressionPlanes(expression_image);
-    const torch::Tensor tp = model->AppearancePlanes(source, eye_mouth, source_matte, tc, source_cam).planes;
+    // T_e from I_exp (encoder) or from the target's morphable coefficients (expression bases).
+    const torch::Tensor tce = tc + model->ExpressionPlanesFor(expression_image, b.target_expression);
     renders[1] = model->Render(tc, target_cam, 0, true).rgb;
     renders[2] = model->Render(tce, target_cam, 0, true).rgb;
-    renders[3] = model->Render(tce + tp, target_cam, 0, true).rgb;
+    if (config.appearance_branch) {
+      const torch::Tensor tp = model->AppearancePlanes(source, eye_mouth, source_matte, tc, source_cam).planes;
+      renders[3] = model->Render(tce + tp, target_cam, 0, true).rgb;
+    } else {
+      renders[3] = renders[2];  // no appearance branch: the output is I_c+e
+    }
     if (sr) renders[4] = model->SuperResolve(renders[3]);
     renders[5] = torch::nn::functional::interpolate(
                      renders[3], torch::nn::functional::InterpolateFuncOptions()
@@ -622,7 +644,10 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
   json header;
   header["checkpoint"] = {{"path", options.checkpoint}, {"fingerprint", fingerprint},
                           {"config", config.name},      {"step", loaded.info.step},
-                          {"sr_trained", sr},           {"data_provenance", loaded.info.data_provenance}};
+                          {"sr_trained", sr},           {"data_provenance", loaded.info.data_provenance},
+                          {"appearance_branch", config.appearance_branch},
+                          {"expression_model", config.expression_model}};
+  if (config.expression_bases()) header["checkpoint"]["expression_coefficients"] = config.expression_coefficients;
   header["data"] = options.data;
   header["split"] = options.split;
   header["split_pairs"] = dataset.size();
@@ -680,7 +705,8 @@ EvaluateReport RunEvaluation(const EvaluateOptions& options, RunContext& ctx) {
   report.json_path = (out / "eval.json").string();
   report.markdown_path = (out / "eval.md").string();
   report.contact_path = (out / "contact.png").string();
-  std::vector<std::string> columns = {"source", "target", "baseline", "I_c", "I_c+e", "I_c+e+p"};
+  std::vector<std::string> columns = {"source", "target", "baseline", "I_c", "I_c+e",
+                                      config.appearance_branch ? "I_c+e+p" : "I_c+e (no T_p)"};
   if (sr) columns.push_back("SR");
   if (!contact_rows.empty()) {
     SaveImage(report.contact_path,

@@ -23,6 +23,12 @@
 // Outputs, written atomically into OUT: eval.json (options, checkpoint, averages per row,
 // per-pair values), eval.md (a Markdown table) and contact.png (a few pairs; columns source,
 // target, baseline, I_c, I_c+e, I_c+e+p[, SR]).
+//
+// Ablation checkpoints (issue 14): with expression bases T_e comes from the target's morphable
+// coefficients beta_t (the shard's target_expression) instead of I_exp; without an appearance
+// branch T_p = 0, so the I_c+e+p row (key "full", renamed "I_c+e+p = I_c+e (no appearance
+// branch)", with a note in eval.json) repeats the I_c+e numbers: it is still the network's output,
+// which the ablation table compares. eval.md names the ablation under the checkpoint line.
 
 #include <cstdint>
 #include <map>

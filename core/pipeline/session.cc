@@ -96,12 +96,32 @@ struct Session::Impl {
   SessionOptions options;
   mutable GohaModel model{nullptr};  // forward passes only read parameters
   ModelInfo info;
+  // Summed planes of one (avatar, expression) and their occupancy grid, built (once, under
+  // `grid_mutex`) at the second frame that skips empty space with these planes: the first frame
+  // of a new expression never waits for a grid, so a slider drag that changes the expression
+  // every frame pays nothing for it, while an orbit or a held expression gets it from its second
+  // frame on.
+  struct CachedPlanes {
+    torch::Tensor planes;
+    std::mutex grid_mutex;
+    int grid_requests = 0;
+    std::shared_ptr<const render::OccupancyGrid> grid;
+  };
   mutable std::mutex cache_mutex;
-  // LRU of summed planes T_c + T_p + T_e keyed by "<avatar id>|<expression key>".
-  mutable std::list<std::pair<std::string, torch::Tensor>> cache;
+  // LRU of summed planes T_c + T_p + T_e keyed by "<avatar id>|<expression key>". A new
+  // reconstruction or a refinement makes a new avatar id, so its planes and grid are new entries.
+  mutable std::list<std::pair<std::string, std::shared_ptr<CachedPlanes>>> cache;
   mutable std::atomic<int64_t> expression_images{0};
 
-  torch::Tensor PlanesFor(const AvatarState& state, const Expression& expression, RunContext* ctx) const {
+  // The entry's grid, or null at its first request (see CachedPlanes).
+  std::shared_ptr<const render::OccupancyGrid> GridFor(CachedPlanes& entry) const {
+    std::lock_guard<std::mutex> lock(entry.grid_mutex);
+    if (entry.grid == nullptr && ++entry.grid_requests >= 2) entry.grid = model->OccupancyGridFor(entry.planes);
+    return entry.grid;
+  }
+
+  std::shared_ptr<CachedPlanes> PlanesFor(const AvatarState& state, const Expression& expression,
+                                          RunContext* ctx) const {
     const std::string key = std::to_string(state.id) + "|" + expression.Key();
     {
       std::lock_guard<std::mutex> lock(cache_mutex);
@@ -120,11 +140,12 @@ struct Session::Impl {
     AVATAR_CHECK(exp_image.type() == CV_8UC3 && exp_image.rows == s && exp_image.cols == s)
         << "expression source returned a " << exp_image.cols << "x" << exp_image.rows << " image, expected " << s;
     if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
-    const torch::Tensor planes = state.base + model->ExpressionPlanes(ImageToTensor(exp_image, s, "I_exp"));
+    auto entry = std::make_shared<CachedPlanes>();
+    entry->planes = state.base + model->ExpressionPlanes(ImageToTensor(exp_image, s, "I_exp"));
     std::lock_guard<std::mutex> lock(cache_mutex);
-    cache.emplace_front(key, planes);
+    cache.emplace_front(key, entry);
     while (static_cast<int>(cache.size()) > options.expression_cache) cache.pop_back();
-    return planes;
+    return entry;
   }
 };
 
@@ -284,12 +305,23 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
     GohaModel& model = impl_->model;
     const ModelConfig& c = model->config();
     if (ctx != nullptr) ctx->ThrowIfCancelled();
-    const torch::Tensor planes = impl_->PlanesFor(state, expression, ctx);
+    const std::shared_ptr<Impl::CachedPlanes> cached = impl_->PlanesFor(state, expression, ctx);
+    const torch::Tensor& planes = cached->planes;
     if (ctx != nullptr) ctx->Report("animate", 0.3, "volume render");
     const int resolution = settings.resolution > 0 ? settings.resolution : c.render_size;
     render::RenderOptions ro = model->RenderOptionsFor(resolution);
     if (settings.num_coarse > 0) ro.num_coarse = settings.num_coarse;
     if (settings.num_importance >= 0) ro.num_importance = settings.num_importance;
+    ro.return_opacity = settings.opacity;
+    ro.return_depth = settings.depth;
+    if (impl_->options.render_skips) {
+      ro.early_termination = settings.early_termination;
+      ro.skip_missed_rays = settings.skip_missed_rays;
+      if (settings.skip_empty_space) {
+        ro.occupancy = impl_->GridFor(*cached);
+        ro.skip_empty_space = ro.occupancy != nullptr;
+      }
+    }
     const render::RenderOutput out = model->RenderWith(planes, cameras, ro);
     Frame frame;
     frame.render_size = resolution;
@@ -321,8 +353,8 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
     } else {
       frame.bgr = TensorToBgr(out.rgb);
     }
-    frame.opacity = TensorToFloatMat(out.opacity, frame.bgr.rows);
-    frame.depth = TensorToFloatMat(out.depth, frame.bgr.rows);
+    if (out.opacity.defined()) frame.opacity = TensorToFloatMat(out.opacity, frame.bgr.rows);
+    if (out.depth.defined()) frame.depth = TensorToFloatMat(out.depth, frame.bgr.rows);
     if (ctx != nullptr) ctx->Report("animate", 1.0, "done");
     return frame;
   } catch (...) {

@@ -15,6 +15,11 @@
 //   - a new view only: no encoder; one volume render of the cached planes T_c + T_p + T_e;
 //   - a new expression: the morphable render I_exp and E_e (T_e), then the render;
 //   - super-resolution only for Preset::kFinal.
+// Frames are rendered with the inference skips on (RenderSettings, SessionOptions::render_skips):
+// early ray termination, rays missing the box, and empty-space skipping through an occupancy
+// grid built once per cached T_c + T_p + T_e, at the second frame that renders those planes (so
+// again after a new expression, a new reconstruction or a refinement, which makes a new avatar
+// id; the first frame of a new expression never waits for a grid).
 // T_p depends on the source alone because the lifting depth is rendered from T_c (paper).
 //
 // Thread safety: a Session may be used from several threads at once. Reconstruct and Animate
@@ -76,6 +81,7 @@ const char* PresetName(Preset preset);
 
 struct Frame {
   cv::Mat bgr;          // [H,W] CV_8UC3
+  // Empty when RenderSettings::opacity / ::depth are off.
   cv::Mat opacity;      // [H,W] CV_32FC1 in [0,1] (bilinear-upsampled from the render for kFinal)
   cv::Mat depth;        // [H,W] CV_32FC1 expected depth along the ray (far plane 3.3 for empty rays)
   int render_size = 0;  // side of the volume render behind this frame
@@ -92,6 +98,17 @@ struct RenderSettings {
   int num_coarse = 0;             // stratified samples per ray (0 = the model's)
   int num_importance = -1;        // importance samples per ray (-1 = the model's; 0 = none)
   bool super_resolution = false;  // output at sr_size: the SR network when trained (or random weights), else bicubic
+  // Inference skips of the volume render (core/render/renderer.h), each bounded in its change to
+  // the image (docs/PERFORMANCE.md "Render skips", "Frame time with render skips"; skipping
+  // missed rays assumes the field is empty outside the box, which a foggy model is not at views
+  // wider than the default framing). They act only while SessionOptions::render_skips is on (the
+  // default); all on by default.
+  bool early_termination = true;  // stop marching a ray once its transmittance is below 1e-3
+  bool skip_missed_rays = true;   // rays that miss the tri-plane box are background
+  bool skip_empty_space = true;   // no decoder in cells the avatar's occupancy grid marks empty
+  // Outputs: Frame::opacity / Frame::depth stay empty when off (the render skips their sums).
+  bool opacity = true;
+  bool depth = true;
   // Throws InvalidOptions (resolution outside 0 or 4..1024, coarse outside 0 or 2..512, importance outside -1..512).
   void Validate() const;
 };
@@ -108,8 +125,11 @@ struct SessionOptions {
   int seed = 0;
   // Folder with installed data ("" = AVATAR_DATA_DIR or the default cache).
   std::string data_dir;
-  // Expression planes kept in the session's cache (LRU).
+  // Expression planes kept in the session's cache (LRU), each with its occupancy grid.
   int expression_cache = 16;
+  // Render frames with the inference skips their RenderSettings ask for (all by default); off =
+  // every sample of every ray is evaluated (the full render, for comparisons).
+  bool render_skips = true;
 
   template <typename V>
   void Visit(V&& v) {
@@ -119,6 +139,9 @@ struct SessionOptions {
     v("config", config, "Network size with --random-weights: paper, lite or tiny");
     v("seed", seed, "Seed of the random weights");
     v("expression_cache", expression_cache, "Expression tri-planes kept in memory");
+    v("render_skips", render_skips,
+      "Skip work a frame does not need (early ray termination, rays missing the head's box, empty space); "
+      "--no-render-skips renders every sample");
   }
   // Throws InvalidOptions.
   void Validate() const;

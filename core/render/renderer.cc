@@ -169,6 +169,28 @@ void EvaluateWhere(const Field& field, const torch::Tensor& points, const torch:
   into.features.view({b, n * s, c}).index_copy_(1, idx, samples.features);
 }
 
+// Evaluates samples [start, start + len) of every ray, points [B,N,S,3], into `into` (allocated
+// as in EvaluateWhere): no index bookkeeping when every ray wants these samples.
+void EvaluateColumns(const Field& field, const torch::Tensor& points, int64_t start, int64_t len, Evaluated& into) {
+  const int64_t b = points.size(0), n = points.size(1), s = points.size(2);
+  FieldSamples samples = field(points.narrow(2, start, len).reshape({b, n * len, 3}));
+  AVATAR_CHECK_INPUT(samples.raw_density.defined() && samples.features.defined() &&
+                     samples.raw_density.numel() == b * n * len && samples.features.dim() == 3 &&
+                     samples.features.size(0) == b && samples.features.size(1) == n * len)
+      << "the field must return raw density [B,P] and features [B,P,C] for P = " << n * len << " points";
+  const int64_t c = samples.features.size(2);
+  if (len == s && !into.features.defined()) {
+    into.raw = samples.raw_density.reshape({b, n, s});
+    into.features = samples.features.reshape({b, n, s, c});
+    return;
+  }
+  if (!into.features.defined()) into.features = torch::zeros({b, n, s, c}, samples.features.options());
+  AVATAR_CHECK_INPUT(into.features.size(3) == c) << "the field changed its channel count between calls";
+  if (!into.raw.defined()) into.raw = torch::full({b, n, s}, kSkippedRaw, samples.raw_density.options());
+  into.raw.narrow(2, start, len).copy_(samples.raw_density.reshape({b, n, len}));
+  into.features.narrow(2, start, len).copy_(samples.features.reshape({b, n, len, c}));
+}
+
 // Transmittance before each sample [B,N,S] (1 at the first) from raw densities and depths [B,N,S].
 torch::Tensor TransmittanceBefore(const torch::Tensor& raw, const torch::Tensor& depths) {
   const int64_t s = raw.size(2);
@@ -179,7 +201,16 @@ torch::Tensor TransmittanceBefore(const torch::Tensor& raw, const torch::Tensor&
   return torch::exp(-torch::cat({torch::zeros_like(raw.narrow(2, 0, 1)), cum}, 2));
 }
 
-// The inference path with early termination and/or missed-ray skipping (grad mode off).
+// Cells by which the occupancy grid's occupied cells are grown so that both ends of any interval
+// touching a skipped sample lie in empty cells: consecutive samples are at most one coarse
+// stratum apart (two with jitter), i.e. at most floor(spacing / cell) + 1 cells along each axis.
+int64_t OccupancyDilation(const RenderOptions& options, const OccupancyGrid& grid) {
+  const double spacing =
+      (options.far - options.near) / static_cast<double>(options.num_coarse) * (options.deterministic ? 1.0 : 2.0);
+  return static_cast<int64_t>(std::floor(spacing / grid.cell())) + 1;
+}
+
+// The inference path with early termination, missed-ray and/or empty-space skipping (grad mode off).
 void RenderRaysSkipping(const Field& field, const torch::Tensor& origins, const torch::Tensor& directions,
                         const RenderOptions& options, c10::optional<at::Generator> generator, MarchWeights& weights,
                         torch::Tensor& composite, torch::Tensor& hit_per_batch) {
@@ -188,11 +219,19 @@ void RenderRaysSkipping(const Field& field, const torch::Tensor& origins, const 
   const auto bool_opts = origins.options().dtype(torch::kBool);
   const torch::Tensor coarse_depths = StratifiedDepths(b, n, num_coarse, options.near, options.far,
                                                        options.deterministic, origins.options(), generator);
+  const OccupancyGrid* grid = options.skip_empty_space ? options.occupancy.get() : nullptr;
+  const int64_t dilation = grid != nullptr ? OccupancyDilation(options, *grid) : 0;
+  if (grid != nullptr && grid->AllOccupied(dilation)) grid = nullptr;  // nothing to skip: no lookups
+  // [N,S] samples that may have density for some batch element (undefined: all may).
+  const auto may_be_occupied = [&](const torch::Tensor& points, int64_t samples) {
+    return grid->MayBeOccupied(points, dilation).view({b, n, samples}).any(0);
+  };
   torch::Tensor active = torch::ones({n}, bool_opts);
   if (options.skip_missed_rays) {
     const double half = options.box_warp * (0.5 + options.miss_margin);
     hit_per_batch = SegmentsHitBox(origins, directions, options.near, options.far, half);  // [B,N]
     active = hit_per_batch.any(0);
+    if (hit_per_batch.all().item<bool>()) hit_per_batch = torch::Tensor();  // every ray is marched
   }
   const torch::Tensor hit = active.clone();
   const auto points_at = [&](const torch::Tensor& depths) {
@@ -200,17 +239,26 @@ void RenderRaysSkipping(const Field& field, const torch::Tensor& origins, const 
   };
   // Coarse samples in blocks; rays leave the active set once opaque.
   const torch::Tensor coarse_points = points_at(coarse_depths);
+  const torch::Tensor coarse_grid = coarse_points.view({b, n, num_coarse, 3});
+  const torch::Tensor coarse_occupied = grid != nullptr ? may_be_occupied(coarse_points, num_coarse) : torch::Tensor();
   const int64_t block = options.early_termination ? options.termination_block : num_coarse;
   Evaluated coarse;
-  for (int64_t start = 0; start < num_coarse; start += block) {
-    const int64_t len = std::min(block, num_coarse - start);
-    torch::Tensor keep = torch::zeros({n, num_coarse}, bool_opts);
-    keep.narrow(1, start, len).copy_(active.unsqueeze(1).expand({n, len}));
-    EvaluateWhere(field, coarse_points, keep.view({-1}), n, num_coarse, coarse);
+  for (int64_t start = 0, len = 0; start < num_coarse; start += len) {
+    len = std::min(block, num_coarse - start);
+    torch::Tensor wanted = active.unsqueeze(1).expand({n, len});
+    if (coarse_occupied.defined()) wanted = wanted & coarse_occupied.narrow(1, start, len);
+    if (wanted.all().item<bool>()) {
+      EvaluateColumns(field, coarse_grid, start, len, coarse);
+    } else {
+      torch::Tensor keep = torch::zeros({n, num_coarse}, bool_opts);
+      keep.narrow(1, start, len).copy_(wanted);
+      EvaluateWhere(field, coarse_points, keep.view({-1}), n, num_coarse, coarse);
+    }
     if (options.early_termination && start + len < num_coarse) {
       const torch::Tensor t =
           TransmittanceBefore(coarse.raw.narrow(2, 0, start + len), coarse_depths.narrow(2, 0, start + len));
-      active = active & (t.select(2, start + len - 1) > options.termination_transmittance).any(0);
+      const torch::Tensor t_last = t.select(2, start + len - 1);  // [B,N]
+      active = active & (t_last > options.termination_transmittance).any(0);
       if (!active.any().item<bool>()) break;
     }
   }
@@ -230,8 +278,14 @@ void RenderRaysSkipping(const Field& field, const torch::Tensor& origins, const 
                                    .amin(2);  // [B,N]
     keep = keep & (fine_depths < stop.unsqueeze(2)).any(0);
   }
+  const torch::Tensor fine_points = points_at(fine_depths);
+  if (grid != nullptr) keep = keep & may_be_occupied(fine_points, num_fine);
   Evaluated fine;
-  EvaluateWhere(field, points_at(fine_depths), keep.reshape({-1}), n, num_fine, fine);
+  if (keep.all().item<bool>()) {
+    EvaluateColumns(field, fine_points.view({b, n, num_fine, 3}), 0, num_fine, fine);
+  } else {
+    EvaluateWhere(field, fine_points, keep.reshape({-1}), n, num_fine, fine);
+  }
   MarchUnion(coarse, coarse_depths, &fine, fine_depths, options, weights, composite);
 }
 
@@ -252,8 +306,14 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
   MarchWeights weights;
   torch::Tensor composite;  // [B,N,C] in about [0,1]
   torch::Tensor hit;        // [B,N] rays that meet the box (skip_missed_rays)
-  const bool skipping =
-      !torch::GradMode::is_enabled() && (options.early_termination || options.skip_missed_rays) && n > 0;
+  const bool empty_space = options.skip_empty_space && options.occupancy != nullptr;
+  if (empty_space && !torch::GradMode::is_enabled()) {
+    AVATAR_CHECK_INPUT(options.occupancy->batch() == b)
+        << "the occupancy grid has " << options.occupancy->batch() << " plane sets for " << b
+        << " ray batches; build it from the planes being rendered";
+  }
+  const bool skipping = !torch::GradMode::is_enabled() &&
+                        (options.early_termination || options.skip_missed_rays || empty_space) && n > 0;
   if (skipping) {
     RenderRaysSkipping(field, origins, directions, options, generator, weights, composite, hit);
   } else {

@@ -16,10 +16,12 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <memory>
 
 #include <torch/torch.h>
 
 #include "core/render/camera.h"
+#include "core/render/occupancy_grid.h"
 #include "core/render/rays.h"
 
 namespace avatar::render {
@@ -56,6 +58,13 @@ struct RenderOptions {
   // -1 (background), opacity 0, depth far. Assumes the field is empty outside the box.
   bool skip_missed_rays = false;
   double miss_margin = 0.02;
+  // Empty-space skipping: samples that `occupancy` (occupancy_grid.h, built from the planes being
+  // rendered, batch B) places in empty space, grown by floor(sample spacing / cell) + 1 cells,
+  // are not evaluated (no plane lookup, no decoder). Each ray loses at most
+  // occupancy->sigma_threshold() x (far - near) of optical depth. Needs `occupancy`; without it
+  // the flag does nothing (GohaModelImpl::RenderWith builds one when the flag is set).
+  bool skip_empty_space = false;
+  std::shared_ptr<const OccupancyGrid> occupancy;
   // Outputs computed only when asked (default: both; undefined tensors when off).
   bool return_depth = true;
   bool return_opacity = true;
@@ -64,6 +73,7 @@ struct RenderOptions {
   void EnableInferenceSkips() {
     early_termination = true;
     skip_missed_rays = true;
+    skip_empty_space = true;
   }
 
   template <typename V>

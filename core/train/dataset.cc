@@ -9,7 +9,10 @@
 #include <set>
 #include <sstream>
 
+#include <caffe2/serialize/inline_container.h>
+#include <caffe2/serialize/read_adapter_interface.h>
 #include <nlohmann/json.hpp>
+#include <torch/csrc/jit/serialization/import_read.h>
 #include <torch/serialize.h>
 
 #include "core/util/error.h"
@@ -23,6 +26,31 @@ std::vector<char> ReadAll(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Io("cannot read " + path.string() + ": is the dataset built (avatar-studio dataset build)?");
   return std::vector<char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The bytes of a shard for LibTorch's zip reader, never read past their end. LibTorch 1.13's
+// torch::pickle_load reads through an adapter without bounds checks, so a shard whose zip records
+// point past its end made it read freed memory (found by tests/fuzz, target dataset); here such a
+// read comes back short and the zip reader throws c10::Error.
+class CheckedShardBytes : public caffe2::serialize::ReadAdapterInterface {
+ public:
+  explicit CheckedShardBytes(const std::vector<char>& bytes) : bytes_(bytes) {}
+  size_t size() const override { return bytes_.size(); }
+  size_t read(uint64_t pos, void* buf, size_t n, const char* /*what*/) const override {
+    if (pos >= bytes_.size()) return 0;
+    const size_t count = static_cast<size_t>(std::min<uint64_t>(n, bytes_.size() - pos));
+    std::copy_n(bytes_.data() + pos, count, static_cast<char*>(buf));
+    return count;
+  }
+
+ private:
+  const std::vector<char>& bytes_;
+};
+
+// torch::pickle_load (a zip archive holding data.pkl) over CheckedShardBytes.
+c10::IValue LoadPickledShard(const std::vector<char>& bytes) {
+  caffe2::serialize::PyTorchStreamReader reader(std::make_shared<CheckedShardBytes>(bytes));
+  return torch::jit::readArchiveAndTensors("data", "", "", c10::nullopt, c10::nullopt, c10::nullopt, reader);
 }
 
 // uint8 [...] -> float in [-1,1].
@@ -60,7 +88,7 @@ TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split
   };
   c10::IValue loaded;
   try {
-    loaded = torch::pickle_load(bytes);
+    loaded = LoadPickledShard(bytes);
   } catch (const c10::Error& e) {
     throw bad(std::string("unreadable: ") + e.what_without_backtrace());
   } catch (const std::exception& e) {
@@ -71,7 +99,24 @@ TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split
   auto get = [&](const char* key) {
     auto it = dict.find(c10::IValue(std::string(key)));
     if (it == dict.end() || !it->value().isTensor()) throw bad(std::string("no tensor '") + key + "'");
-    return it->value().toTensor();
+    const torch::Tensor t = it->value().toTensor();
+    // The unpickler takes sizes, strides and offset from the file without checking them against
+    // the storage; indexing such a tensor later threw c10::Error (found by tests/fuzz, target
+    // dataset). Every element must lie inside the storage.
+    if (!t.has_storage() || t.is_sparse() || t.storage_offset() < 0)
+      throw bad(std::string("tensor '") + key + "' is malformed");
+    uint64_t last = static_cast<uint64_t>(t.storage_offset());
+    bool overflow = false;
+    for (int64_t d = 0; d < t.dim(); ++d) {
+      if (t.size(d) == 0) return t;  // no elements: nothing to read
+      if (t.stride(d) < 0) throw bad(std::string("tensor '") + key + "' has a negative stride");
+      uint64_t extent = 0;
+      overflow |= __builtin_mul_overflow(static_cast<uint64_t>(t.size(d) - 1), static_cast<uint64_t>(t.stride(d)), &extent);
+      overflow |= __builtin_add_overflow(last, extent, &last);
+    }
+    if (overflow || last >= t.storage().nbytes() / t.element_size())
+      throw bad(std::string("tensor '") + key + "' reaches past the end of its data");
+    return t;
   };
   out.image_ = get("image");
   out.matte_ = get("matte");
@@ -95,6 +140,12 @@ TrainDataset TrainDataset::Open(const std::string& dir, const std::string& split
     }
   };
   if (n < 0) throw bad("image is not [N,3,S,S]");
+  // Index and kind tensors are read as int64, labels and coefficients as numbers.
+  if (out.identity_.scalar_type() != torch::kInt64 || out.pairs_.scalar_type() != torch::kInt64 ||
+      out.pair_kind_.scalar_type() != torch::kInt64)
+    throw bad("identity, pairs and pair_kind must be int64");
+  if (!out.label_.is_floating_point() || !out.expression_.is_floating_point())
+    throw bad("label and expression must be floating point");
   check_image(out.image_, 3, "image");
   check_image(out.matte_, 1, "matte");
   check_image(out.eye_mouth_, 1, "eye_mouth");

@@ -220,9 +220,11 @@ StageOneTrainer::StageOneTrainer(GohaModel model, const TrainerOptions& options,
   AVATAR_CHECK_INPUT(!model_.is_empty()) << "StageOneTrainer: no model";
   device_ = torch::Device(options_.device);
   model_->to(device_);
-  // Stage II optimises the super-resolution module only.
+  // Stage II optimises the super-resolution module only; modules an ablation switches off
+  // (FrozenByConfig) are never optimised.
   for (const auto& item : model_->named_parameters(true)) {
     if (options_.stage == 2 && item.key().rfind("super_resolution.", 0) != 0) continue;
+    if (FrozenByConfig(model_->config(), item.key())) continue;
     names_.push_back(item.key());
     params_.push_back(item.value());
   }
@@ -245,12 +247,36 @@ StageOneTrainer::StageOneTrainer(GohaModel model, const TrainerOptions& options,
   }
 }
 
+bool FrozenByConfig(const ModelConfig& config, const std::string& name) {
+  const auto starts = [&name](const char* prefix) { return name.rfind(prefix, 0) == 0; };
+  if (!config.appearance_branch && (starts("appearance_encoder.") || starts("appearance_upsampler"))) return true;
+  if (config.expression_bases() && (starts("expression_encoder.") || starts("expression_head."))) return true;
+  return false;
+}
+
+ModelConfig ReadStateModelConfig(const fs::path& path) {
+  const TensorArchive archive = ReadTensorArchive(path, kStateKind);
+  try {
+    return ModelConfigFromJson(archive.meta.at("config").dump());
+  } catch (const nlohmann::json::exception& e) {
+    throw ModelLoad(path.string() + ": malformed training state (" + e.what() + ")");
+  } catch (const InvalidOptions& e) {
+    throw ModelLoad(path.string() + ": the training state holds an invalid model config: " + e.what());
+  }
+}
+
 void StageOneTrainer::InitFromCheckpoint(const fs::path& path) {
   const LoadedModel loaded = LoadModelCheckpoint(path);
   const ModelConfig& stored = loaded.model->config();
-  if (stored != model_->config()) {
-    const nlohmann::json a = nlohmann::json::parse(ModelConfigToJson(stored));
-    const nlohmann::json b = nlohmann::json::parse(ModelConfigToJson(model_->config()));
+  // The ablation fields may differ (e.g. expression bases trained from encoder weights): every
+  // tensor the two networks share is taken, the bases start afresh.
+  const auto sizes_only = [](const ModelConfig& c) {
+    nlohmann::json j = nlohmann::json::parse(ModelConfigToJson(c));
+    for (const char* k : {"appearance_branch", "expression_model", "expression_coefficients"}) j.erase(k);
+    return j;
+  };
+  const nlohmann::json a = sizes_only(stored), b = sizes_only(model_->config());
+  if (a != b) {
     std::string differ;
     for (auto it = a.begin(); it != a.end(); ++it)
       if (!b.contains(it.key()) || b.at(it.key()) != it.value()) differ += (differ.empty() ? "" : ", ") + it.key();
@@ -262,18 +288,20 @@ void StageOneTrainer::InitFromCheckpoint(const fs::path& path) {
   GohaModel source = loaded.model;
   const auto src_params = source->named_parameters(true);
   const auto src_buffers = source->named_buffers(true);
-  for (auto& item : model_->named_parameters(true)) {
-    const torch::Tensor* src = src_params.find(item.key());
-    if (src == nullptr || src->sizes() != item.value().sizes())
-      throw ModelLoad(path.string() + ": tensor '" + item.key() + "' does not match the model");
-    item.value().copy_(*src);
-  }
-  for (auto& item : model_->named_buffers(true)) {
-    const torch::Tensor* src = src_buffers.find(item.key());
-    if (src == nullptr || src->sizes() != item.value().sizes())
-      throw ModelLoad(path.string() + ": tensor '" + item.key() + "' does not match the model");
-    item.value().copy_(*src);
-  }
+  // Tensors only this network has: the expression bases of a bases model initialised from an
+  // encoder model (they keep their initialisation; the std buffer keeps what was set).
+  const auto fresh = [&](const std::string& name) {
+    return model_->config().expression_bases() && !stored.expression_bases() &&
+           (name == "expression_bases" || name == "expression_std");
+  };
+  const auto take = [&](const std::string& name, torch::Tensor& dst, const torch::Tensor* src) {
+    if (src == nullptr && fresh(name)) return;
+    if (src == nullptr || src->sizes() != dst.sizes())
+      throw ModelLoad(path.string() + ": tensor '" + name + "' does not match the model");
+    dst.copy_(*src);
+  };
+  for (auto& item : model_->named_parameters(true)) take(item.key(), item.value(), src_params.find(item.key()));
+  for (auto& item : model_->named_buffers(true)) take(item.key(), item.value(), src_buffers.find(item.key()));
   step_ = loaded.info.step;
   sr_trained_before_ = loaded.info.sr_trained;
 }
@@ -281,14 +309,15 @@ void StageOneTrainer::InitFromCheckpoint(const fs::path& path) {
 std::string StageOneTrainer::PhaseAt(int64_t step) const {
   if (options_.stage == 2) return "super_resolution";
   if (step < options_.expression_start) return "canonical";
-  if (step < options_.appearance_start) return "expression";
+  if (step < options_.appearance_start || !model_->config().appearance_branch) return "expression";
   return "appearance";
 }
 
 std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch& b, int64_t step) {
   const int64_t res = model_->config().render_size;
   const bool with_expression = step >= options_.expression_start;
-  const bool with_appearance = step >= options_.appearance_start;
+  // The w/o-appearance ablation (config.appearance_branch false) never adds T_p.
+  const bool with_appearance = step >= options_.appearance_start && model_->config().appearance_branch;
   // Which terms this step has (the release's rotation, when on, after the canonical phase).
   bool recon = true, full = with_appearance, neutral = true;
   if (options_.rotation && with_expression) {
@@ -312,7 +341,7 @@ std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch
                              .mean();
     if (with_expression) {
       CheckCancel();
-      const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
+      const torch::Tensor tce = tc + model_->ExpressionPlanesFor(b.expression_image, b.target_expression);
       largest = tce;
       terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, options_.deterministic_render).rgb, target,
                                       perceptual_, options_.perceptual_weight)
@@ -413,10 +442,10 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
     // The frozen stage-I network: one render of the full plane sum at the target camera.
     torch::NoGradGuard no_grad;
     const torch::Tensor tc = model_->CanonicalPlanes(b.source);
-    const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
-    const torch::Tensor tp =
-        model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
-    low = model_->Render(tce + tp, target_cam, 0, options_.deterministic_render).rgb;
+    torch::Tensor planes = tc + model_->ExpressionPlanesFor(b.expression_image, b.target_expression);
+    if (config.appearance_branch)
+      planes = planes + model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+    low = model_->Render(planes, target_cam, 0, options_.deterministic_render).rgb;
   }
 
   // Generator (SR) terms; D's parameters take no gradient from them.
@@ -519,11 +548,16 @@ StageOneTrainer::Renders StageOneTrainer::Evaluate(const TrainBatch& batch) {
   const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
   const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
   const torch::Tensor tc = model_->CanonicalPlanes(b.source);
-  const torch::Tensor tce = tc + model_->ExpressionPlanes(b.expression_image);
-  const torch::Tensor tp = model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+  const torch::Tensor tce = tc + model_->ExpressionPlanesFor(b.expression_image, b.target_expression);
   out.canonical = model_->Render(tc, target_cam, 0, true).rgb;
   out.expression = model_->Render(tce, target_cam, 0, true).rgb;
-  out.full = model_->Render(tce + tp, target_cam, 0, true).rgb;
+  if (model_->config().appearance_branch) {
+    const torch::Tensor tp =
+        model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
+    out.full = model_->Render(tce + tp, target_cam, 0, true).rgb;
+  } else {
+    out.full = out.expression;  // no appearance branch: the output is I_c+e
+  }
   out.source = b.source;
   if (options_.stage == 2) out.super_resolved = model_->SuperResolve(out.full);
   model_->train();
@@ -628,9 +662,16 @@ void StageOneTrainer::LoadState(const fs::path& path, BatchSource* source) {
   const std::string file = path.string();
   try {
     const ModelConfig stored = ModelConfigFromJson(archive.meta.at("config").dump());
-    if (stored != model_->config())
+    if (stored != model_->config()) {
+      const nlohmann::json a = nlohmann::json::parse(ModelConfigToJson(stored));
+      const nlohmann::json b = nlohmann::json::parse(ModelConfigToJson(model_->config()));
+      std::string differ;
+      for (auto it = a.begin(); it != a.end(); ++it)
+        if (!b.contains(it.key()) || b.at(it.key()) != it.value()) differ += (differ.empty() ? "" : ", ") + it.key();
       throw ModelLoad(file + ": the training state is of model config '" + stored.name +
-                      "', not of the model being trained ('" + model_->config().name + "')");
+                      "', not of the model being trained ('" + model_->config().name +
+                      "'; fields that differ: " + differ + ")");
+    }
     const int64_t stage = archive.meta.value("stage", int64_t{1});
     if (stage != options_.stage)
       throw ModelLoad(file + ": the training state is of stage " + std::to_string(stage) + ", not of stage " +

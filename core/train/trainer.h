@@ -8,6 +8,15 @@
 //   each against the matted target resized to the render size: L1 + perceptual_weight x perceptual;
 //   + neutral_weight x NeutralLoss(R(T_c, C_s), I_neu, M_neu)
 //   + tv_weight x DensityTvLoss on the densities of the largest active plane sum.
+// Terms with weight 0 (neutral_weight, tv_weight) are not computed at all (no render, no term).
+//
+// Ablations (issue 14, the paper's Table 4) follow the model config (core/model/model_config.h):
+// without an appearance branch (appearance_branch false) I_c+e+p is never rendered and there is
+// no "appearance" term (the phase stays "expression"); with expression bases (expression_model
+// "bases") T_e = ExpressionPlanesFromCoefficients(beta_t) from the batch's target_expression
+// instead of E_e(I_exp). The modules either switches off (FrozenByConfig) are not optimised and
+// keep the values they were initialised with. The w/o-neutral ablation is neutral_weight 0.
+//
 // Training renders jitter their stratified and importance samples (RenderOptions::deterministic
 // = false, unless TrainerOptions::deterministic_render); evaluation renders (Evaluate) are
 // deterministic.
@@ -45,7 +54,11 @@
 //
 // Initialisation from weights (InitFromCheckpoint, RunOptions::init_weights): a fresh run takes
 // the model tensors of a model checkpoint (float16 files too) and its step (the curriculum and
-// the log continue); Adam starts afresh. This is how stage II starts from stage-I weights.
+// the log continue); Adam starts afresh. This is how stage II starts from stage-I weights. The
+// checkpoint's config must equal the trained one except for the ablation fields
+// (appearance_branch, expression_model, expression_coefficients): an ablation starts from the
+// full model's weights, the expression bases (absent from an encoder checkpoint) keep their
+// initialisation (zeros) and expression_std keeps what the caller set.
 //
 // Training state (TensorArchive kind "goha-train-state"): weights, Adam moments and step
 // counts, D and its Adam state (stage II), the stage, the step, the global CPU (and device)
@@ -70,6 +83,14 @@
 #include "core/util/run_context.h"
 
 namespace avatar::train {
+
+// Whether `config` switches off the module of parameter `name` (an ablation): the appearance
+// encoder and upsamplers without an appearance branch, E_e and its head with expression bases.
+// The trainer never optimises those parameters.
+bool FrozenByConfig(const ModelConfig& config, const std::string& name);
+
+// The model config stored in a training state file (RUN/state.ckpt). Throws Io / ModelLoad.
+ModelConfig ReadStateModelConfig(const std::filesystem::path& path);
 
 // Where the trainer gets its batches. The dataset loader implements it; tests feed synthetic ones.
 class BatchSource {
@@ -217,7 +238,7 @@ class StageOneTrainer {
 
   // Fresh-run initialisation from a model checkpoint: every model tensor and the step (see the
   // header comment). Throws Io / ModelLoad (unreadable file) or InvalidOptions when its model
-  // config is not the one being trained.
+  // config is not the one being trained (ablation fields aside).
   void InitFromCheckpoint(const std::filesystem::path& path);
 
   // State files (see the header comment). Save throws InvalidInput on a non-finite tensor (and

@@ -76,6 +76,12 @@ constexpr bool IsBool() {
   return std::is_same<T, bool>::value;
 }
 
+// std::vector of numbers (not bool): FromJson checks each element like a number field.
+template <typename T>
+struct IsNumberList : std::false_type {};
+template <typename E, typename A>
+struct IsNumberList<std::vector<E, A>> : std::bool_constant<std::is_arithmetic_v<E> && !std::is_same_v<E, bool>> {};
+
 }  // namespace detail
 
 // Writes every field into a JSON object.
@@ -96,15 +102,28 @@ void FromJson(Options& opts, const nlohmann::json& j) {
     auto it = j.find(name);
     if (it == j.end()) return;
     using T = std::decay_t<decltype(field)>;
+    // nlohmann converts true to 1 and 64.5 to 64 silently, and a number beyond the field's range
+    // is undefined behaviour (found by tests/fuzz, target model_config, in a list of ints); a
+    // config file means what it says.
+    auto check_number = [&](const nlohmann::json& v, auto type) {
+      using N = decltype(type);
+      AVATAR_CHECK_OPTION(v.is_number()) << "option '" << name << "' must be a number in JSON, got " << v.dump();
+      const double d = v.get<double>();
+      if constexpr (std::is_integral_v<N>) {
+        AVATAR_CHECK_OPTION(std::isfinite(d) && d == std::floor(d) &&
+                            d >= static_cast<double>(std::numeric_limits<N>::min()) &&
+                            d <= static_cast<double>(std::numeric_limits<N>::max()))
+            << "option '" << name << "' must be a whole number in JSON, got " << v.dump();
+      } else {
+        AVATAR_CHECK_OPTION(!std::isfinite(d) || std::abs(d) <= static_cast<double>(std::numeric_limits<N>::max()))
+            << "option '" << name << "' is out of range in JSON, got " << v.dump();
+      }
+    };
     if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool>) {
-      // nlohmann converts true to 1 and 64.5 to 64 silently; a config file means what it says.
-      AVATAR_CHECK_OPTION(it->is_number()) << "option '" << name << "' must be a number in JSON, got " << it->dump();
-      if constexpr (std::is_integral_v<T>) {
-        const double v = it->get<double>();
-        AVATAR_CHECK_OPTION(std::isfinite(v) && v == std::floor(v) &&
-                            v >= static_cast<double>(std::numeric_limits<T>::min()) &&
-                            v <= static_cast<double>(std::numeric_limits<T>::max()))
-            << "option '" << name << "' must be a whole number in JSON, got " << it->dump();
+      check_number(*it, T{});
+    } else if constexpr (detail::IsNumberList<T>::value) {
+      if (it->is_array()) {
+        for (const auto& v : *it) check_number(v, typename T::value_type{});
       }
     }
     try {

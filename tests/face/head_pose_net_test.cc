@@ -212,7 +212,21 @@ TEST(HeadPoseNet, BrokenModelFilesGiveModelLoad) {
   {
     std::ofstream(dir / "foreign.onnx", std::ios::binary) << "GIF89a not a model";
   }
-  for (const auto& file : {dir / "absent.onnx", dir / "foreign.onnx", DataFile("models/fr_feature.onnx")}) {
+  // The real pose model cut at a tenth, a half and one byte short of its end.
+  std::vector<std::filesystem::path> cut;
+  {
+    std::ifstream in(DataFile("models/fr_pose.onnx"), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ASSERT_GT(bytes.size(), 100000u);
+    for (const size_t size : {bytes.size() / 10, bytes.size() / 2, bytes.size() - 1}) {
+      cut.push_back(dir / ("truncated-" + std::to_string(size) + ".onnx"));
+      std::ofstream(cut.back(), std::ios::binary) << bytes.substr(0, size);
+    }
+  }
+  std::vector<std::filesystem::path> bad = {dir / "absent.onnx", dir / "foreign.onnx",
+                                            DataFile("models/fr_feature.onnx")};
+  bad.insert(bad.end(), cut.begin(), cut.end());
+  for (const auto& file : bad) {
     try {
       HeadPoseNet::FromFile(file);
       ADD_FAILURE() << "loaded " << file;

@@ -344,7 +344,13 @@ TEST(IdentityNet, BrokenModelFilesGiveModelLoad) {
   // Another real ONNX model (the pose net) is refused by its output size.
   ExpectModelLoad(DataFile("models/fr_pose.onnx"));
   // The LibTorch copy refuses the same files, and a graph with other layer types (the pose net).
-  for (const auto& file : {dir / "absent.onnx", dir / "foreign.onnx", DataFile("models/fr_pose.onnx")}) {
+  // The last byte missing cuts into the final initializer or graph field.
+  {
+    std::ofstream(dir / "short-by-one.onnx", std::ios::binary) << bytes.substr(0, bytes.size() - 1);
+  }
+  ExpectModelLoad(dir / "short-by-one.onnx");
+  for (const auto& file : {dir / "absent.onnx", dir / "foreign.onnx", dir / "truncated.onnx",
+                           dir / "short-by-one.onnx", DataFile("models/fr_pose.onnx")}) {
     try {
       IdentityTorch::FromFile(file);
       ADD_FAILURE() << "LibTorch copy of " << file;

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <iostream>
+#include <map>
 
 #include <nlohmann/json.hpp>
 
@@ -219,7 +220,7 @@ TEST(EncoderChoice, TinyMobileNetModelOverfitsOneBatch) {
   const ModelConfig c = TinyMobileNet();
   GohaModel model(c);
   const Inputs in = MakeInputs(c);
-  torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(2e-3).betas({0.9, 0.99}));
+  torch::optim::Adam opt = avatar::testing::OverfitOptimizer(model);  // the backbones at 1e-4
   double first = 0.0, last = 0.0;
   const int steps = 200;
   const auto t0 = std::chrono::steady_clock::now();
@@ -237,6 +238,42 @@ TEST(EncoderChoice, TinyMobileNetModelOverfitsOneBatch) {
             << " s\n";
   EXPECT_TRUE(std::isfinite(last));
   EXPECT_LT(last, first / 10.0) << "loss (mean of the last 10 steps) did not fall 10x";
+}
+
+// The backbones' BatchNormalization keeps nsfwjs's statistics in train() too (the usual practice
+// for a pretrained backbone fine-tuned at small batches): train() and eval() give the same features,
+// and a training step moves the weights (gamma and beta included) but never the running statistics.
+TEST(EncoderChoice, MobileNetBatchNormKeepsPretrainedStatisticsInTraining) {
+  RequireNsfwjs();
+  torch::manual_seed(34);
+  GohaModel model(TinyMobileNet());
+  const Inputs in = MakeInputs(model->config());
+  const torch::Tensor x = torch::cat({in.source, in.expression}, 0);  // two images: batch statistics differ
+  std::map<std::string, torch::Tensor> buffers, weights;
+  for (const auto& item : model->named_buffers(true)) buffers[item.key()] = item.value().clone();
+  for (const auto& item : model->named_parameters(true)) weights[item.key()] = item.value().detach().clone();
+  int64_t statistics = 0;
+  for (const auto& [name, value] : buffers) statistics += name.find(".backbone.") != std::string::npos;
+  EXPECT_GT(statistics, 100) << "the backbones' BN statistics are not buffers of the network";
+
+  model->train();
+  const torch::Tensor trained = model->canonical_encoder->forward(x).detach();
+  model->eval();
+  const torch::Tensor evaluated = model->canonical_encoder->forward(x).detach();
+  EXPECT_TRUE(torch::allclose(trained, evaluated, 1e-6, 1e-6))
+      << "train() changes the encoder's output by " << (trained - evaluated).abs().max().item<double>();
+
+  model->train();
+  torch::optim::Adam opt = avatar::testing::OverfitOptimizer(model);
+  opt.zero_grad();
+  Loss(model, in).backward();
+  opt.step();
+  for (const auto& item : model->named_buffers(true)) {
+    EXPECT_TRUE(torch::equal(item.value(), buffers.at(item.key()))) << item.key() << " changed in a training step";
+  }
+  const std::string gamma = "canonical_encoder.backbone.bn_Conv1.weight";
+  ASSERT_EQ(weights.count(gamma), 1u);
+  EXPECT_FALSE(torch::equal(model->named_parameters(true)[gamma], weights.at(gamma))) << gamma << " did not train";
 }
 
 // One-off measurement for docs/PERFORMANCE.md: both encoders at the paper's decoder_dim 256, batch

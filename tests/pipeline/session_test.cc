@@ -406,6 +406,44 @@ TEST(Session, AnimateAtACameraLabel) {
   EXPECT_THROW(session.Animate(avatar, {}, bad, Preset::kPreview), InvalidInput);
 }
 
+// Frames render with the inference skips by default (RenderSettings, SessionOptions::render_skips)
+// and stay within the skips' bound of the full render; depth and alpha are computed only when asked.
+TEST(Session, RenderSkipsAreOnByDefaultAndCloseToTheFullRender) {
+  EXPECT_TRUE(SessionOptions().render_skips);
+  const RenderSettings defaults;
+  EXPECT_TRUE(defaults.early_termination && defaults.skip_missed_rays && defaults.skip_empty_space);
+  EXPECT_TRUE(defaults.opacity && defaults.depth);
+  const Session skipping(TinyOptions());
+  SessionOptions off = TinyOptions();
+  off.render_skips = false;
+  const Session full(off);
+  const Avatar avatar = MakeAvatar(skipping);
+  for (const ViewPose& view : {ViewPose{}, ViewPose{35, -10}, ViewPose{170, 20}}) {
+    SCOPED_TRACE(view.yaw);
+    const Frame a = full.Animate(avatar, {}, view, Preset::kStandard);
+    const Frame b = skipping.Animate(avatar, {}, view, Preset::kStandard);
+    ASSERT_EQ(a.bgr.size(), b.bgr.size());
+    cv::Mat diff;
+    cv::absdiff(a.bgr, b.bgr, diff);
+    const cv::Scalar levels = cv::mean(diff);
+    // 1e-3 of the [-1,1] range is 0.13 grey levels; 8-bit rounding adds at most one level per pixel.
+    EXPECT_LE((levels[0] + levels[1] + levels[2]) / 3.0, 0.5);
+    cv::Mat opacity_diff;
+    cv::absdiff(a.opacity, b.opacity, opacity_diff);
+    EXPECT_LE(cv::mean(opacity_diff)[0], 1e-3);
+  }
+  RenderSettings lean;
+  lean.opacity = false;
+  lean.depth = false;
+  const Frame with = skipping.Animate(avatar, {}, avatar.SourceCamera(), RenderSettings{});
+  const Frame without = skipping.Animate(avatar, {}, avatar.SourceCamera(), lean);
+  EXPECT_FALSE(with.opacity.empty());
+  EXPECT_FALSE(with.depth.empty());
+  EXPECT_TRUE(without.opacity.empty());
+  EXPECT_TRUE(without.depth.empty());
+  EXPECT_TRUE(SameMat(with.bgr, without.bgr));
+}
+
 TEST(Expression, KeyIsCanonical) {
   Expression a{{{"smile", 0.5f}, {"jawOpen", 0.25f}}};
   Expression b{{{"jawOpen", 0.25f}, {"smile", 0.5f}, {"blink", 0.0f}}};

@@ -1,5 +1,6 @@
 // Inference-only skips of the renderer (issue 13, "render only what the frame needs"): early
-// ray termination, rays that miss the tri-plane box, depth and alpha only when asked. Each skip
+// ray termination, rays that miss the tri-plane box, empty-space skipping through the occupancy
+// grid (occupancy_grid.h), depth and alpha only when asked. Each skip
 // is checked against the full render of the same field (mean abs change of the features <= 1e-3),
 // on a small random field and on the bundled model; the speed-up is measured as a ratio in the
 // same run and printed (never asserted). The work saved is asserted through the point count.
@@ -8,10 +9,13 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -114,6 +118,8 @@ TEST(RenderSkips, OffByDefault) {
   const RenderOptions o;
   EXPECT_FALSE(o.early_termination);
   EXPECT_FALSE(o.skip_missed_rays);
+  EXPECT_FALSE(o.skip_empty_space);
+  EXPECT_EQ(o.occupancy, nullptr);
   EXPECT_TRUE(o.return_depth);
   EXPECT_TRUE(o.return_opacity);
   RenderOptions bad;
@@ -140,6 +146,7 @@ TEST(RenderSkips, GradModeRendersAreUnchanged) {
   plain.num_importance = 12;
   RenderOptions skipping = plain;
   skipping.EnableInferenceSkips();
+  skipping.occupancy = BuildOccupancyGrid(init, DecoderDensityMlp(decoder), plain.box_warp);
   const Cameras cams = WideCameras(0.3);
   torch::Tensor grads[2];
   torch::Tensor rgb[2];
@@ -284,6 +291,258 @@ TEST(RenderSkips, DepthAndAlphaOnlyWhenAsked) {
   EXPECT_TRUE(g.rgb.defined());
 }
 
+// A head-like tri-plane field for the occupancy grid: a decoder whose density rises with plane
+// channel 0 (positive first-layer weights on it, a positive density row) shifted by
+// `density_offset` (-20: empty where the planes hold only their noise), and planes of noise with
+// a Gaussian bump of channel 0 in the middle of each plane (an ellipsoidal opaque core). `grid` is
+// the occupancy grid of the planes under the decoder (default options).
+struct BlobScene {
+  torch::Tensor planes;
+  TriplaneDecoder decoder;
+  std::shared_ptr<RenderProfile> counter = std::make_shared<RenderProfile>();  // field evaluations
+  Field field;
+  std::shared_ptr<const OccupancyGrid> grid;
+};
+
+BlobScene MakeBlobScene(double density_offset = -20.0, int64_t batch = 1, int64_t size = 64) {
+  torch::manual_seed(11);
+  BlobScene s;
+  const int64_t c = kDecoderInputChannels, h = kDecoderHiddenChannels, f = kDecoderFeatureChannels;
+  torch::Tensor w1 = torch::randn({h, c}) / std::sqrt(static_cast<double>(c));
+  w1.select(1, 0).copy_(w1.select(1, 0).abs() * 2.0 + 0.5);
+  torch::Tensor w2 = torch::randn({1 + f, h}) / std::sqrt(static_cast<double>(h));
+  w2[0].abs_();
+  torch::Tensor b2 = torch::zeros({1 + f});
+  b2[0] = density_offset;
+  s.decoder = TriplaneDecoder();
+  s.decoder->SetEffectiveWeights(w1, torch::zeros({h}), w2, b2);
+  const torch::Tensor centres = (torch::arange(size).to(torch::kFloat32) + 0.5) * (2.0 / static_cast<double>(size)) - 1.0;
+  const torch::Tensor r2 = centres.view({-1, 1}).pow(2) + centres.view({1, -1}).pow(2);
+  s.planes = torch::randn({batch, 3, c, size, size}) * 0.3;
+  s.planes.select(2, 0).add_(10.0 * torch::exp(-r2 / (2.0 * 0.2 * 0.2)));
+  TriplaneDecoder decoder = s.decoder;
+  s.field = MakeTriplaneField(
+      s.planes, [decoder](const torch::Tensor& x) mutable { return decoder->forward(x); }, 1.0, s.counter.get());
+  s.grid = BuildOccupancyGrid(s.planes, DecoderDensityMlp(s.decoder), 1.0);
+  return s;
+}
+
+// Flat cell index [P] of points [1,P,3] inside the grid's cube.
+torch::Tensor CellOf(const OccupancyGrid& grid, const torch::Tensor& points) {
+  const int64_t g = grid.resolution();
+  const torch::Tensor idx = ((points[0] + grid.half()) / grid.cell()).floor().clamp(0, g - 1).to(torch::kLong);
+  return (idx.select(1, 0) * g + idx.select(1, 1)) * g + idx.select(1, 2);
+}
+
+TEST(OccupancyGrid, OptionsAndThreshold) {
+  OccupancyGridOptions bad;
+  bad.resolution = 1;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+  bad = OccupancyGridOptions();
+  bad.extent = 0.0;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+  bad = OccupancyGridOptions();
+  bad.sigma_threshold = 0.0;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+  const OccupancyGrid grid(torch::full({1, 4, 4, 4}, -30.0), 0.5, 1e-3);
+  // The threshold in raw units is the renderer's density of 1e-3.
+  EXPECT_NEAR(torch::softplus(torch::tensor(grid.raw_threshold() - 1.0)).item<double>(), 1e-3, 1e-9);
+  EXPECT_EQ(grid.EmptyFraction(), 1.0);
+  // Planes that do not match the MLP are refused.
+  DensityMlp mlp = DecoderDensityMlp(TriplaneDecoder());
+  EXPECT_THROW(BuildOccupancyGrid(torch::zeros({1, 3, 16, 8, 8}), mlp, 1.0), InvalidInput);
+  EXPECT_THROW(BuildOccupancyGrid(torch::zeros({1, 2, 32, 8, 8}), mlp, 1.0), InvalidInput);
+}
+
+// Growing the occupied cells and the lookup of points: one occupied cell in an 8^3 grid.
+TEST(OccupancyGrid, DilationAndLookup) {
+  torch::Tensor max_raw = torch::full({1, 8, 8, 8}, -30.0);
+  max_raw[0][4][4][2] = 5.0;
+  const OccupancyGrid grid(max_raw, 0.5, 1e-3);
+  EXPECT_NEAR(grid.EmptyFraction(), 511.0 / 512.0, 1e-12);
+  EXPECT_EQ(grid.Dilated(0).sum().item<int64_t>(), 1);
+  const torch::Tensor d1 = grid.Dilated(1).view({8, 8, 8});
+  const torch::Tensor i = torch::arange(8);
+  const auto near = [&](int64_t centre) { return (i - centre).abs() <= 1; };
+  const auto face = (i == 0) | (i == 7);
+  const torch::Tensor block = near(4).view({8, 1, 1}) & near(4).view({1, 8, 1}) & near(2).view({1, 1, 8});
+  const torch::Tensor faces = face.view({8, 1, 1}) | face.view({1, 8, 1}) | face.view({1, 1, 8});
+  EXPECT_TRUE(torch::equal(d1, block | faces));
+  EXPECT_TRUE(torch::equal(grid.Dilated(1), grid.Dilated(1)));  // kept
+  EXPECT_FALSE(grid.AllOccupied(1));
+  EXPECT_TRUE(grid.AllOccupied(4));  // the faces' layer alone covers an 8^3 grid at dilation 4
+  // Cell centres: -0.5 + (i + 0.5) / 8.
+  const auto centre = [](int64_t x, int64_t y, int64_t z) {
+    return std::vector<float>{static_cast<float>(-0.5 + (x + 0.5) / 8.0), static_cast<float>(-0.5 + (y + 0.5) / 8.0),
+                              static_cast<float>(-0.5 + (z + 0.5) / 8.0)};
+  };
+  std::vector<float> flat;
+  for (const auto& p : {centre(4, 4, 2), centre(5, 5, 3), centre(2, 2, 5), centre(6, 6, 4)}) {
+    flat.insert(flat.end(), p.begin(), p.end());
+  }
+  flat.insert(flat.end(), {0.7f, 0.0f, 0.0f});  // outside the cube
+  const torch::Tensor points = torch::tensor(flat).view({1, 5, 3});
+  const torch::Tensor at0 = grid.MayBeOccupied(points, 0)[0];
+  const torch::Tensor at1 = grid.MayBeOccupied(points, 1)[0];
+  const torch::Tensor at2 = grid.MayBeOccupied(points, 2)[0];
+  EXPECT_TRUE(torch::equal(at0, torch::tensor({true, false, false, false, true})));
+  EXPECT_TRUE(torch::equal(at1, torch::tensor({true, true, false, false, true})));
+  // At dilation 2, (6,6,4) is two cells from the occupied cell and in the faces' layer.
+  EXPECT_TRUE(torch::equal(at2, torch::tensor({true, true, false, true, true})));
+  EXPECT_THROW(grid.MayBeOccupied(torch::zeros({2, 1, 3}), 0), InvalidInput);
+}
+
+// The property behind the skip: wherever a point lies in the cube, the field's raw density is at
+// most its cell's bound, so points in cells marked empty have a density below the threshold.
+TEST(OccupancyGrid, EmptyCellsHaveNoDensityAtSampledPoints) {
+  torch::NoGradGuard no_grad;
+  const BlobScene scene = MakeBlobScene();
+  const OccupancyGrid& grid = *scene.grid;
+  const int64_t g = grid.resolution();
+  const double empty = grid.EmptyFraction();
+  std::cout << "[skip] blob field occupancy grid " << g << "^3: empty fraction " << empty << std::endl;
+  ASSERT_GT(empty, 0.3);
+  ASSERT_LT(empty, 0.99);
+  const torch::Tensor bounds = grid.max_raw().view({-1});
+  const torch::Tensor occupied = grid.occupied().view({-1});
+  torch::manual_seed(12);
+  // (1) Uniform points over the whole cube.
+  const torch::Tensor uniform = (torch::rand({1, 200000, 3}) * 2.0 - 1.0) * grid.half();
+  // (2) Points in cells marked empty: 4 uniform points in each of up to 20000 random empty cells.
+  const torch::Tensor empty_cells = torch::logical_not(occupied).nonzero().view({-1});
+  const torch::Tensor pick =
+      empty_cells.index_select(0, torch::randperm(empty_cells.numel()).narrow(0, 0, std::min<int64_t>(20000, empty_cells.numel())));
+  const torch::Tensor cell_xyz =
+      torch::stack({torch::div(pick, g * g, "floor"), torch::div(pick, g, "floor").remainder(g), pick.remainder(g)}, 1)
+          .to(torch::kFloat32);  // [K,3]
+  const torch::Tensor in_cells =
+      ((cell_xyz.unsqueeze(1) + torch::rand({pick.numel(), 4, 3})) * grid.cell() - grid.half()).reshape({1, -1, 3});
+  for (const auto& [what, points] : {std::make_pair("uniform", uniform), std::make_pair("in empty cells", in_cells)}) {
+    SCOPED_TRACE(what);
+    const torch::Tensor raw = scene.field(points).raw_density[0];
+    const torch::Tensor cell = CellOf(grid, points);
+    const torch::Tensor bound = bounds.index_select(0, cell);
+    const double worst = (raw - bound).max().item<double>();
+    const torch::Tensor in_empty = torch::logical_not(occupied.index_select(0, cell));
+    ASSERT_GT(in_empty.sum().item<int64_t>(), 1000);
+    const double sigma_max = torch::softplus(raw.masked_select(in_empty) - 1.0).max().item<double>();
+    std::cout << "[skip]   " << what << ": " << points.size(1) << " points, max (raw - bound) " << worst
+              << ", max density in empty cells " << sigma_max << " (threshold " << grid.sigma_threshold()
+              << "), mean bound slack where computed "
+              << (bound - raw).masked_select(torch::isfinite(bound)).mean().item<double>() << std::endl;
+    EXPECT_LE(worst, 0.0);
+    EXPECT_LT(sigma_max, grid.sigma_threshold());
+  }
+}
+
+TEST(RenderSkips, EmptySpaceBlobField) {
+  torch::NoGradGuard no_grad;
+  const BlobScene scene = MakeBlobScene();
+  const RenderOptions full = Options(48);
+  RenderOptions empty = full;
+  empty.skip_empty_space = true;
+  empty.occupancy = scene.grid;
+  const Cameras cams = FrontalCameras(1);
+  const Timed a = TimeRender([&](RenderProfile* p) { return RenderField(scene.field, cams, full, c10::nullopt, p); },
+                             scene.counter.get());
+  const Timed b = TimeRender([&](RenderProfile* p) { return RenderField(scene.field, cams, empty, c10::nullopt, p); },
+                             scene.counter.get());
+  Report("empty space, blob field 48^2", a, b);
+  ExpectValidOutputs(b.out, empty, "empty space");
+  ASSERT_GT(a.out.opacity.max().item<double>(), 0.99);  // an opaque core
+  ASSERT_LT(a.out.opacity.min().item<double>(), 1e-3);  // and empty corners
+  EXPECT_LT(b.points, a.points * 3 / 4);
+  EXPECT_LE(MeanAbs(a.out.features, b.out.features), 1e-3);
+  EXPECT_LE(MeanAbs(a.out.opacity, b.out.opacity), 1e-3);
+  // Per ray at most sigma_threshold x (far - near) of optical depth is lost.
+  EXPECT_LE((a.out.opacity - b.out.opacity).abs().max().item<double>(), 1.1e-3);
+  EXPECT_LE((a.out.features - b.out.features).abs().max().item<double>(), 1e-2);
+  const torch::Tensor solid = a.out.opacity > 0.5;
+  EXPECT_LE((a.out.depth - b.out.depth).abs().masked_select(solid).max().item<double>(), 1e-3);
+  // Every skip together.
+  RenderOptions all = empty;
+  all.EnableInferenceSkips();
+  const Timed c = TimeRender([&](RenderProfile* p) { return RenderField(scene.field, cams, all, c10::nullopt, p); },
+                             scene.counter.get());
+  Report("all skips, blob field 48^2", a, c);
+  ExpectValidOutputs(c.out, all, "all skips");
+  EXPECT_LE(c.points, b.points);
+  EXPECT_LE(MeanAbs(a.out.features, c.out.features), 1e-3);
+}
+
+TEST(RenderSkips, EmptySpaceEdgeCases) {
+  torch::NoGradGuard no_grad;
+  const RenderOptions full = Options(24);
+  const Cameras front = FrontalCameras(1);
+  const auto with_grid = [&](const BlobScene& scene) {
+    RenderOptions o = full;
+    o.skip_empty_space = true;
+    o.occupancy = scene.grid;
+    return o;
+  };
+  {
+    SCOPED_TRACE("dense everywhere: nothing empty, nothing skipped");
+    const BlobScene dense = MakeBlobScene(5.0);
+    EXPECT_EQ(dense.grid->EmptyFraction(), 0.0);
+    dense.counter->points = 0;
+    const RenderOutput a = RenderField(dense.field, front, full);
+    const int64_t points_full = dense.counter->points.exchange(0);
+    const RenderOutput b = RenderField(dense.field, front, with_grid(dense));
+    EXPECT_EQ(dense.counter->points.load(), points_full);
+    EXPECT_LE((a.features - b.features).abs().max().item<double>(), 1e-5);
+  }
+  {
+    SCOPED_TRACE("empty everywhere: every sample skipped");
+    const BlobScene vacuum = MakeBlobScene(-100.0);
+    EXPECT_EQ(vacuum.grid->EmptyFraction(), 1.0);
+    vacuum.counter->points = 0;
+    const RenderOutput a = RenderField(vacuum.field, front, full);
+    const int64_t points_full = vacuum.counter->points.exchange(0);
+    const RenderOptions o = with_grid(vacuum);
+    const RenderOutput b = RenderField(vacuum.field, front, o);
+    ExpectValidOutputs(b, o, "vacuum");
+    EXPECT_LT(vacuum.counter->points.load(), points_full / 100);
+    // Skipped samples read as raw density -30 (softplus(-31) ~ 3e-14 per world unit).
+    EXPECT_LT(b.opacity.max().item<double>(), 1e-12);
+    EXPECT_NEAR(b.features.max().item<double>(), -1.0, 1e-12);
+    EXPECT_LE(MeanAbs(a.features, b.features), 1e-3);
+  }
+  {
+    // The grid alone: the blob field is not empty outside the box (the planes' projections reach
+    // far along the axes), so skipping missed rays would drop it at the far camera.
+    SCOPED_TRACE("extreme poses");
+    const BlobScene scene = MakeBlobScene();
+    const RenderOptions o = with_grid(scene);
+    struct Pose {
+      const char* name;
+      double yaw, pitch, roll, radius;
+    };
+    for (const Pose& p : {Pose{"behind", 180, 0, 0, 2.7}, Pose{"above", 0, 89, 0, 2.7}, Pose{"below", 0, -89, 0, 2.7},
+                          Pose{"turned and rolled", 135, 40, 170, 2.7}, Pose{"close, inside the range", 30, 10, 0, 2.3},
+                          Pose{"far away", 0, 0, 0, 20.0}}) {
+      SCOPED_TRACE(p.name);
+      const Cameras cams{testing::LookAtOrbit(p.yaw, p.pitch, p.roll, p.radius).unsqueeze(0),
+                         DefaultIntrinsics().unsqueeze(0)};
+      const RenderOutput a = RenderField(scene.field, cams, full);
+      const RenderOutput b = RenderField(scene.field, cams, o);
+      ExpectValidOutputs(b, o, p.name);
+      EXPECT_LE(MeanAbs(a.features, b.features), 1e-3);
+      EXPECT_LE(MeanAbs(a.opacity, b.opacity), 1e-3);
+    }
+  }
+  {
+    SCOPED_TRACE("a batch of two plane sets; a grid of the wrong batch is refused");
+    const BlobScene pair = MakeBlobScene(-20.0, 2);
+    EXPECT_EQ(pair.grid->batch(), 2);
+    const Cameras cams = FrontalCameras(2);
+    const RenderOutput a = RenderField(pair.field, cams, full);
+    const RenderOutput b = RenderField(pair.field, cams, with_grid(pair));
+    for (int64_t i = 0; i < 2; ++i) EXPECT_LE(MeanAbs(a.features[i], b.features[i]), 1e-3);
+    const BlobScene single = MakeBlobScene();
+    EXPECT_THROW(RenderField(pair.field, cams, with_grid(single)), InvalidInput);
+  }
+}
+
 // The bundled model: planes predicted from a synthetic portrait-like image, frontal and orbit views.
 TEST(RenderSkips, BundledModel) {
   const std::filesystem::path path = std::filesystem::path(AVATAR_SOURCE_DIR) / "resources/models/goha-default.ckpt";
@@ -325,16 +584,29 @@ TEST(RenderSkips, BundledModel) {
   std::cout << "[skip] bundled model " << c.name << " on " << input << ": load + planes " << load_timer.Seconds()
             << " s, render " << c.render_size << "^2, " << c.num_coarse << " + " << c.num_importance << " samples"
             << std::endl;
+  // The grid is built once per planes (as the session does) and passed in.
+  Timer grid_timer;
+  const auto grid = model->OccupancyGridFor(planes);
+  std::cout << "[skip] bundled model occupancy grid " << grid->resolution() << "^3: built in " << grid_timer.Seconds()
+            << " s, empty fraction " << grid->EmptyFraction() << ", raw bound min "
+            << grid->max_raw().min().item<double>() << " (threshold " << grid->raw_threshold() << ")" << std::endl;
+  // The model flag builds a grid itself when none is given: the same image.
+  model->inference_skips = true;
+  const RenderOutput flagged = model->Render(planes, FrontalCameras(1));
+  model->inference_skips = false;
+  EXPECT_LE(MeanAbs(flagged.features, model->Render(planes, FrontalCameras(1)).features), 1e-3);
   for (double yaw : {0.0, 30.0}) {
     ViewPose pose;
     pose.yaw = yaw;
     const Cameras cams{OrbitCam2World(pose).unsqueeze(0), DefaultIntrinsics().unsqueeze(0)};
     const auto render_with = [&](bool skips) {
       return TimeRender([&](RenderProfile* p) {
-        model->inference_skips = skips;
-        RenderOutput out = model->Render(planes, cams, 0, true, p);
-        model->inference_skips = false;
-        return out;
+        RenderOptions o = model->RenderOptionsFor();
+        if (skips) {
+          o.EnableInferenceSkips();
+          o.occupancy = grid;
+        }
+        return model->RenderWith(planes, cams, o, p);
       });
     };
     const Timed a = render_with(false);

@@ -1,0 +1,163 @@
+#pragma once
+// The measurements behind `avatar-studio bench SUBJECT`: each subject is an option struct and a
+// function that measures and returns the figures; app/ prints them. Every subject measures this
+// machine's baseline (the fp32 GEMM rate) in the same run, because the machines are shared and
+// noisy: the ratios stay comparable where the times do not.
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "core/util/run_context.h"
+
+namespace avatar {
+
+// `value` with exactly `digits` decimals ("%.*f"), for the tables.
+std::string Fixed(double value, int digits);
+
+// Peak resident memory of this process so far, in MB (getrusage's ru_maxrss).
+double PeakRssMb();
+
+// Median of `values` (the mean of the middle two for an even count). Throws InvalidInput when empty.
+double Median(std::vector<double> values);
+
+// "a,b,,c" -> {"a", "b", "c"} (empty items dropped): the comma lists of the bench flags.
+std::vector<std::string> SplitList(const std::string& text);
+
+// Measured fp32 GEMM rate of this machine with the current thread setting: the best of
+// `repeats` n x n x n products (2 n^3 FLOPs each), in GFLOP/s.
+double MeasureGemmGflops(int64_t n = 1024, int repeats = 5);
+
+// Median wall time in seconds of `fn` over `repeats` runs after one warm-up run; checks `ctx`
+// for a cancel before each timed run. Throws InvalidInput for repeats < 1.
+double MedianSeconds(int repeats, RunContext& ctx, const std::function<void()>& fn);
+
+// ---------------------------------------------------------------------------- bench render
+
+// The render presets of `bench render`, in table order: paper, medium, small, tiny.
+std::vector<std::string> RenderBenchmarkPresets();
+
+struct RenderBenchmarkOptions {
+  // Comma-separated presets: paper, medium, small, tiny (or "all").
+  std::string presets = "all";
+  // Timed renders per preset (after one warm-up); the median is reported.
+  int repeats = 3;
+  // Cameras rendered together.
+  int batch = 1;
+  // Rays per parallel work item.
+  int chunk_rays = 256;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("presets", presets, "Comma-separated presets: paper,medium,small,tiny or all");
+    v("repeats", repeats, "Timed renders per preset (median reported)");
+    v("batch", batch, "Cameras rendered together");
+    v("chunk_rays", chunk_rays, "Rays per parallel work item");
+  }
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+// One preset's figures (random tri-planes and decoder, deterministic sampling, no gradients).
+struct RenderBenchmarkRow {
+  std::string preset;
+  int64_t batch = 1;
+  int resolution = 0;                  // rays per camera: resolution^2
+  int num_coarse = 0, num_importance = 0;
+  int plane_size = 0;                  // planes 3 x 32 x plane_size^2
+  double median_seconds = 0.0;
+  double rays_per_second = 0.0, samples_per_second = 0.0;
+  // Shares of the thread-summed renderer time: plane sampling, decoder, the rest.
+  double sample_share = 0.0, decoder_share = 0.0, other_share = 0.0;
+  double decoder_gflops = 0.0;         // decoder FLOPs / (thread-summed decoder time / threads)
+};
+
+struct RenderBenchmarkReport {
+  int threads = 0;
+  double gemm_before = 0.0, gemm_after = 0.0;  // GFLOP/s
+  std::vector<RenderBenchmarkRow> rows;
+};
+
+// Runs the render benchmark. `on_start` (may be empty) is called once the GEMM baseline is
+// measured, with the report so far; `on_row` (may be empty) with each row as it is measured.
+// `threads` as the command line gives it (0 = the configured default). Throws InvalidOptions,
+// InternalError (non-finite render), Cancelled.
+RenderBenchmarkReport RunRenderBenchmark(const RenderBenchmarkOptions& options, int threads, RunContext& ctx,
+                                         const std::function<void(const RenderBenchmarkReport&)>& on_start = {},
+                                         const std::function<void(const RenderBenchmarkRow&)>& on_row = {});
+
+// ---------------------------------------------------------------------------- bench face
+
+struct FaceBenchmarkOptions {
+  // Timed repetitions per photo (after one warm-up); medians are reported.
+  int repeats = 5;
+  // Frames of the clip tracked for the video rate.
+  int frames = 100;
+  // Folder with the installed data ("" = AVATAR_DATA_DIR, then the default cache).
+  std::string data_dir;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("repeats", repeats, "Timed repetitions per photo (median reported)");
+    v("frames", frames, "Frames of franck.mp4 tracked for the video rate");
+  }
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+struct FaceBenchmarkStage {
+  std::string photo;   // file name under samples/
+  std::string stage;   // an analyser stage, or "total"
+  double median_ms = 0.0;
+};
+
+struct FaceBenchmarkReport {
+  double gemm_gflops = 0.0;
+  double model_load_ms = 0.0;
+  std::vector<FaceBenchmarkStage> stages;  // per photo (grace_hopper.jpg, sample1.jpg), in stage order
+  int tracked_frames = 0;                  // of franck.mp4
+  double track_ms_per_frame = 0.0;         // decode included
+};
+
+// Per-stage times of the portrait analysis on two packaged photos and the tracking rate on the
+// first frames of a clip. Throws InvalidOptions, MissingData, Cancelled.
+FaceBenchmarkReport RunFaceBenchmark(const FaceBenchmarkOptions& options, RunContext& ctx);
+
+// ---------------------------------------------------------------------------- bench morphable
+
+struct MorphableBenchmarkOptions {
+  // Timed repetitions (median reported).
+  int repeats = 5;
+  // Frames of the sequence fit.
+  int frames = 50;
+  // Folder with the installed data ("" = AVATAR_DATA_DIR, then the default cache).
+  std::string data_dir;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("repeats", repeats, "Timed repetitions (median reported)");
+    v("frames", frames, "Frames of the sequence fit");
+  }
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+// Milliseconds (medians after a warm-up) of the morphable model's stages.
+struct MorphableBenchmarkReport {
+  int identity_components = 0, expression_components = 0;
+  double gemm_gflops = 0.0;
+  double gemm_ms = 0.0;                  // one fp32 1024^3 GEMM at that rate
+  double fit_ms = 0.0;                   // Fit, one 512 crop, 468 landmarks
+  double texture_ms = 0.0;               // SampleTexture, 256^2 UV
+  double render_ms = 0.0;                // RenderNeutral 512^2
+  double render_supersampled_ms = 0.0;   // the same with 2x2 supersampling
+  double render_256_ms = 0.0;            // RenderExpressionImage 256^2
+  double sequence_ms_per_frame = 0.0;    // FitSequence over options.frames frames
+};
+
+// Fitting, texture and rendering speed on synthetic landmarks of the installed morphable model
+// (no face analysis). Throws InvalidOptions, MissingData, Cancelled.
+MorphableBenchmarkReport RunMorphableBenchmark(const MorphableBenchmarkOptions& options, RunContext& ctx);
+
+}  // namespace avatar
