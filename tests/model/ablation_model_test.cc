@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "common/gradient_check.h"
 #include "core/model/goha_model.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
@@ -34,23 +35,9 @@ ModelConfig TinyBases(int k) {
 // Largest |central difference - autograd| over every element of x0, for a scalar f (double).
 double WorstGradError(const std::function<torch::Tensor(const torch::Tensor&)>& f, const torch::Tensor& x0,
                       double* grad_sum) {
-  torch::Tensor x = x0.detach().clone().set_requires_grad(true);
-  f(x).backward();
-  const torch::Tensor analytic = x.grad().detach().flatten();
-  *grad_sum = analytic.abs().sum().item<double>();
-  torch::Tensor flat = x0.detach().clone().flatten();
-  const double h = 1e-6;
-  double worst = 0.0;
-  for (int64_t i = 0; i < flat.numel(); ++i) {
-    const double v = flat[i].item<double>();
-    flat[i] = v + h;
-    const double up = f(flat.view(x0.sizes())).item<double>();
-    flat[i] = v - h;
-    const double down = f(flat.view(x0.sizes())).item<double>();
-    flat[i] = v;
-    worst = std::max(worst, std::abs((up - down) / (2 * h) - analytic[i].item<double>()));
-  }
-  return worst;
+  const test::GradientCheck check = test::CheckGradient(f, x0);
+  *grad_sum = check.analytic_abs_sum;
+  return check.worst_error;
 }
 
 TEST(AblationConfig, FilesWithoutTheFieldsReadAsTheFullDesign) {

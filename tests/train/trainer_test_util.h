@@ -15,6 +15,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "common/gradient_check.h"
 #include "core/model/goha_model.h"
 #include "core/render/camera.h"
 #include "core/train/losses.h"
@@ -29,22 +30,9 @@ namespace fs = std::filesystem;
 // Central differences of a scalar function against autograd, every element of `x` (double).
 inline void ExpectGradMatches(const std::function<torch::Tensor(const torch::Tensor&)>& f, const torch::Tensor& x0,
                        const std::string& what, double h = 1e-6, double tol = 1e-6) {
-  torch::Tensor x = x0.detach().clone().set_requires_grad(true);
-  f(x).backward();
-  const torch::Tensor analytic = x.grad().detach().flatten();
-  torch::Tensor flat = x0.detach().clone().flatten();
-  double worst = 0.0;
-  for (int64_t i = 0; i < flat.numel(); ++i) {
-    const double v = flat[i].item<double>();
-    flat[i] = v + h;
-    const double up = f(flat.view(x0.sizes())).item<double>();
-    flat[i] = v - h;
-    const double down = f(flat.view(x0.sizes())).item<double>();
-    flat[i] = v;
-    worst = std::max(worst, std::abs((up - down) / (2 * h) - analytic[i].item<double>()));
-  }
-  EXPECT_LT(worst, tol) << what << ": finite differences disagree with autograd by " << worst;
-  EXPECT_GT(analytic.abs().sum().item<double>(), 0.0) << what << ": all-zero gradient";
+  const test::GradientCheck check = test::CheckGradient(f, x0, h);
+  EXPECT_LT(check.worst_error, tol) << what << ": finite differences disagree with autograd by " << check.worst_error;
+  EXPECT_GT(check.analytic_abs_sum, 0.0) << what << ": all-zero gradient";
 }
 
 // ---------------------------------------------------------------------------------------------
