@@ -13,22 +13,8 @@ namespace avatar::app {
 
 namespace {
 
-struct BenchAccuracyOptions {
-  // Checkpoint, data, portraits, output folder, presets, sweep, yaw, metrics.
-  AccuracyBenchmarkOptions bench;
-  // Threads, data folder, verbosity.
-  CommonOptions common;
-
-  template <typename V>
-  void Visit(V&& v) {
-    bench.Visit(v);
-    common.Visit(v);
-  }
-  void Validate() const {
-    bench.Validate();
-    common.Validate();
-  }
-};
+// Checkpoint, data, portraits, output folder, presets, sweep, yaw, metrics; threads, data folder, verbosity.
+using BenchAccuracyOptions = BenchSubjectOptions<AccuracyBenchmarkOptions>;
 
 int RunBenchAccuracyImpl(BenchAccuracyOptions options, RunContext& ctx) {
   options.Validate();

@@ -165,25 +165,11 @@ int RunAnalyze(const std::vector<std::string>& args) {
   });
 }
 
-
 // `avatar-studio bench face`: per-stage times of AnalyzePortrait on two packaged photos and the
 // tracking rate on the first frames of a clip, with this machine's GEMM rate measured in the
-// same run (ratios stay comparable across noisy, shared machines).
-struct BenchFaceOptions {
-  // Repetitions per photo, frames of the clip.
-  FaceBenchmarkOptions bench;
-  CommonOptions common;
-
-  template <typename V>
-  void Visit(V&& v) {
-    bench.Visit(v);
-    common.Visit(v);
-  }
-  void Validate() const {
-    bench.Validate();
-    common.Validate();
-  }
-};
+// same run (ratios stay comparable across noisy, shared machines). Flags: repetitions per
+// photo, frames of the clip.
+using BenchFaceOptions = BenchSubjectOptions<FaceBenchmarkOptions>;
 
 int RunBenchFaceImpl(BenchFaceOptions o, RunContext& ctx) {
   o.Validate();
@@ -204,17 +190,9 @@ int RunBenchFaceImpl(BenchFaceOptions o, RunContext& ctx) {
 }
 
 int RunBenchFace(const std::vector<std::string>& args) {
-  return GuardedRun("bench face", [&] {
-    BenchFaceOptions options;
-    std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio bench face [options]",
-                      "Times each face-analysis stage on packaged photos and the tracking rate on a clip.",
-                      &positionals)) {
-      return kExitOk;
-    }
-    AVATAR_CHECK_OPTION(positionals.empty()) << "bench face takes no positional arguments";
-    return RunBenchFaceImpl(options, ProcessContext());
-  });
+  return RunBenchSubject<BenchFaceOptions>(
+      args, "face", "Times each face-analysis stage on packaged photos and the tracking rate on a clip.",
+      RunBenchFaceImpl);
 }
 
 AVATAR_REGISTER_BENCH_SUBJECT("face", "face analysis stages (detect, mesh, crop, matte, embedding) and tracking", RunBenchFace);

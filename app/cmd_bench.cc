@@ -56,16 +56,11 @@ int RunBench(const std::vector<std::string>& args) {
   return kExitUsage;
 }
 
-void BenchRenderOptions::Validate() const {
-  render.Validate();
-  common.Validate();
-}
-
 int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
   options.Validate();
   const auto print_header = [&](const RenderBenchmarkReport& r) {
-    std::cout << "Render benchmark: " << r.threads << " threads, batch " << options.render.batch << ", "
-              << options.render.repeats
+    std::cout << "Render benchmark: " << r.threads << " threads, batch " << options.bench.batch << ", "
+              << options.bench.repeats
               << " timed renders per preset (median), float32, deterministic sampling, inference mode.\n"
               << "GEMM peak (fp32 1024^3, best of 5): " << Fixed(r.gemm_before, 1) << " GFLOP/s\n\n"
               << "| preset | rays | samples/ray | planes | time (s) | rays/s | samples/s | plane sampling | decoder | "
@@ -84,7 +79,7 @@ int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
     std::cout << row.str() << std::endl;
   };
   const RenderBenchmarkReport report = RunRenderBenchmark(
-      options.render, options.common.threads, ctx,
+      options.bench, options.common.threads, ctx,
       [&](const RenderBenchmarkReport& r) {
         gemm_before = r.gemm_before;
         print_header(r);

@@ -30,20 +30,27 @@ std::vector<BenchSubject> BenchSubjects();
 // Dispatches `bench SUBJECT ...`; returns an exit code.
 int RunBench(const std::vector<std::string>& args);
 
-// Options of `bench render` (the measurement: core/pipeline/benchmarks.h).
-struct BenchRenderOptions {
-  // Presets, repeats, batch, rays per work item.
-  RenderBenchmarkOptions render;
-  // Threads, data folder, verbosity.
+// The flags of a subject whose measurement options (core/pipeline) are complete as they stand:
+// those options, then the common ones (threads, data folder, verbosity).
+template <typename Bench>
+struct BenchSubjectOptions {
+  Bench bench;
   CommonOptions common;
 
   template <typename V>
   void Visit(V&& v) {
-    render.Visit(v);
+    bench.Visit(v);
     common.Visit(v);
   }
-  void Validate() const;
+  void Validate() const {
+    bench.Validate();
+    common.Validate();
+  }
 };
+
+// Options of `bench render` (the measurement: core/pipeline/benchmarks.h): presets, repeats,
+// batch, rays per work item.
+using BenchRenderOptions = BenchSubjectOptions<RenderBenchmarkOptions>;
 
 // Runs the render benchmark and prints a table; returns kExitOk. Throws avatar::Error.
 int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx);

@@ -94,7 +94,7 @@ int RunBuild(const std::vector<std::string>& args) {
 int RunInspect(const std::vector<std::string>& args) {
   DatasetInspectCommandOptions o;
   std::vector<std::string> positionals;
-  if (!ParseCommand(o, args, "avatar-studio dataset inspect DIR [--contact FILE] [--pairs N] [--kind real|synthetic]",
+  if (!ParseCommand(o, args, "avatar-studio dataset inspect DIR [--contact FILE] [--pairs N] [--kind real|synthetic] [--identity NAME]",
                     "Prints the counts, split and yaw/pitch/expression histograms of a built dataset and writes\n"
                     "a contact sheet of random training pairs (source | target | I_exp | M_neu).",
                     &positionals)) {

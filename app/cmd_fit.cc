@@ -82,23 +82,8 @@ int RunFit(const std::vector<std::string>& args) {
 
 // `avatar-studio bench morphable`: fitting, texture and rendering speed on synthetic landmarks of
 // the committed model (no face analysis), as milliseconds and as multiples of one fp32
-// 1024^3 GEMM measured in the same run.
-struct BenchMorphableOptions {
-  // Repetitions, frames of the sequence fit.
-  MorphableBenchmarkOptions bench;
-  // Threads, data folder, verbosity.
-  CommonOptions common;
-
-  template <typename V>
-  void Visit(V&& v) {
-    bench.Visit(v);
-    common.Visit(v);
-  }
-  void Validate() const {
-    bench.Validate();
-    common.Validate();
-  }
-};
+// 1024^3 GEMM measured in the same run. Flags: repetitions and frames of the sequence fit.
+using BenchMorphableOptions = BenchSubjectOptions<MorphableBenchmarkOptions>;
 
 int RunBenchMorphableImpl(BenchMorphableOptions o, RunContext& ctx) {
   o.Validate();
@@ -123,16 +108,8 @@ int RunBenchMorphableImpl(BenchMorphableOptions o, RunContext& ctx) {
 }
 
 int RunBenchMorphable(const std::vector<std::string>& args) {
-  return GuardedRun("bench morphable", [&] {
-    BenchMorphableOptions options;
-    std::vector<std::string> positionals;
-    if (!ParseCommand(options, args, "avatar-studio bench morphable [options]",
-                      "Speed of fitting, texture sampling and the CPU mesh renderer.", &positionals)) {
-      return kExitOk;
-    }
-    AVATAR_CHECK_OPTION(positionals.empty()) << "bench morphable takes no positional arguments";
-    return RunBenchMorphableImpl(options, ProcessContext());
-  });
+  return RunBenchSubject<BenchMorphableOptions>(
+      args, "morphable", "Speed of fitting, texture sampling and the CPU mesh renderer.", RunBenchMorphableImpl);
 }
 
 }  // namespace

@@ -43,6 +43,7 @@ set(AVATAR_FUZZ_SOURCES
   core/pipeline/expression_preset.cc
   core/render/view_pose.cc
   core/train/dataset.cc
+  core/train/shard_check.cc
   core/train/sample.cc
 )
 list(TRANSFORM AVATAR_FUZZ_SOURCES PREPEND "${PROJECT_SOURCE_DIR}/")

@@ -35,23 +35,32 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 // I_exp of a validation photo: its own expression image (photo pairs: target = source), the
-// only expression the benchmark renders.
+// only expression the benchmark renders; and its morphable coefficients (the shard's target
+// expression) for a network with expression bases.
 class FixedExpressionSource : public ExpressionImageSource {
  public:
-  explicit FixedExpressionSource(cv::Mat bgr) : bgr_(std::move(bgr)) {}
+  FixedExpressionSource(cv::Mat bgr, std::vector<float> beta) : bgr_(std::move(bgr)), beta_(std::move(beta)) {}
   cv::Mat Render(const Expression& expression, int size) const override {
-    AVATAR_CHECK_INPUT(expression.controls.empty() && expression.coefficients.empty())
-        << "the benchmark renders the portrait's own expression only";
+    CheckOwn(expression);
     cv::Mat out;
     cv::resize(bgr_, out, cv::Size(size, size), 0, 0, size < bgr_.cols ? cv::INTER_AREA : cv::INTER_CUBIC);
     return out;
+  }
+  std::vector<float> Coefficients(const Expression& expression) const override {
+    CheckOwn(expression);
+    return beta_;
   }
   std::vector<std::string> ControlNames() const override { return {}; }
   std::string Kind() const override { return "bench-fixed"; }
   std::string Serialize() const override { return {}; }
 
  private:
+  static void CheckOwn(const Expression& expression) {
+    AVATAR_CHECK_INPUT(expression.controls.empty() && expression.coefficients.empty())
+        << "the benchmark renders the portrait's own expression only";
+  }
   cv::Mat bgr_;
+  std::vector<float> beta_;
 };
 
 // One validation portrait as the session and the refinement take it.
@@ -85,7 +94,13 @@ Portrait MakePortrait(const train::TrainSample& s, int64_t index) {
   cv::resize(eye_mouth, p.aligned.eye_mouth_mask, cv::Size(512, 512), 0, 0, cv::INTER_NEAREST);
   const torch::Tensor label = s.source_label.to(torch::kCPU, torch::kFloat32).contiguous();
   std::copy(label.data_ptr<float>(), label.data_ptr<float>() + 25, p.fit.camera.begin());
-  p.fit.expressions = std::make_shared<FixedExpressionSource>(TensorToBgr(s.expression_image.unsqueeze(0)));
+  std::vector<float> beta;
+  if (s.target_expression.defined()) {
+    const torch::Tensor t = s.target_expression.to(torch::kCPU, torch::kFloat32).contiguous();
+    beta.assign(t.data_ptr<float>(), t.data_ptr<float>() + t.numel());
+  }
+  p.fit.expressions =
+      std::make_shared<FixedExpressionSource>(TensorToBgr(s.expression_image.unsqueeze(0)), std::move(beta));
   p.target.image = p.aligned.image;
   p.target.matte = p.aligned.matte;
   if (s.neutral_image.defined() && s.neutral_mask.defined()) {

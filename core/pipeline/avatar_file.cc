@@ -69,9 +69,12 @@ std::shared_ptr<AvatarState> ReadAvatarFile(const std::filesystem::path& path, c
     throw ModelLoad(file + ": avatar holds an invalid model config: " + e.what());
   }
   if (state->config != c) {
-    throw ModelLoad(file + ": the avatar was made with model config '" + state->config.name +
-                    "' (model '" + state->model_id + "') but this session runs '" + c.name +
-                    "'; reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
+    // Configs of one name can differ (an ablation's `expression_model`, `appearance_branch`), so
+    // the models are named by their ids as well.
+    throw ModelLoad(file + ": the avatar was made with model '" + state->model_id + "' (config '" +
+                    state->config.name + "') but this session runs model '" + model_id + "' (config '" + c.name +
+                    (state->config.name == c.name ? "' with other settings" : "'") +
+                    "); reconstruct the portrait again with this model, or pass the --checkpoint it was made with");
   }
   if (state->model_id != model_id) {
     throw ModelLoad(file + ": the avatar was made with model '" + state->model_id + "' but this session runs '" +

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iomanip>
+#include <numeric>
 #include <random>
 #include <sstream>
 
@@ -182,13 +183,35 @@ DatasetInspection InspectDataset(const DatasetInspectOptions& o, RunContext& ctx
   }
   AVATAR_CHECK_OPTION(o.kind == "real" || synthetic_set) << "--kind synthetic: the dataset has no synthetic pairs";
   const train::TrainDataset& sheet_set = o.kind == "synthetic" ? *synthetic_set : train_set;
-  if (sheet_set.size() == 0) return out;
+  std::vector<int64_t> candidates;
+  if (o.identity.empty()) {
+    candidates.resize(static_cast<size_t>(sheet_set.size()));
+    std::iota(candidates.begin(), candidates.end(), int64_t{0});
+  } else {
+    // Identity ids are positions in split.json's list of names.
+    const fs::path split_path = dir / "split.json";
+    int64_t id = -1;
+    try {
+      const json names = LoadJson(split_path).at("identities");
+      for (size_t i = 0; i < names.size(); ++i)
+        if (names[i].get<std::string>() == o.identity) id = static_cast<int64_t>(i);
+    } catch (const json::exception& e) {
+      throw InvalidInput(split_path.string() + " does not have the expected content (" + e.what() +
+                         "): rebuild the dataset");
+    }
+    AVATAR_CHECK_OPTION(id >= 0) << "--identity: '" << o.identity << "' is not an identity of " << split_path.string();
+    for (int64_t i = 0; i < sheet_set.size(); ++i)
+      if (sheet_set.PairIdentity(i) == id) candidates.push_back(i);
+    AVATAR_CHECK_OPTION(!candidates.empty())
+        << "--identity: '" << o.identity << "' has no " << o.kind << " training pairs (a validation identity?)";
+  }
+  if (candidates.empty()) return out;
   std::mt19937_64 rng(static_cast<uint64_t>(o.seed));
-  std::uniform_int_distribution<int64_t> pick(0, sheet_set.size() - 1);
+  std::uniform_int_distribution<size_t> pick(0, candidates.size() - 1);
   std::vector<cv::Mat> rows;
   for (int k = 0; k < o.pairs; ++k) {
     ctx.ThrowIfCancelled();
-    const train::TrainSample s = sheet_set.Get(pick(rng));
+    const train::TrainSample s = sheet_set.Get(candidates[pick(rng)]);
     std::vector<cv::Mat> tiles = {TileImage(s.source, true), TileImage(s.target, true),
                                   TileImage(s.expression_image, true), TileImage(s.neutral_mask, false)};
     cv::Mat row;

@@ -27,6 +27,9 @@ struct DatasetInspectOptions {
   std::string kind = "real";
   // Histogram PNG path ("" = DIR/histograms.png).
   std::string histograms;
+  // Only pairs of this identity (a name from split.json's identities) on the contact sheet; "" = all.
+  // A sheet of one public-domain identity (grace_hopper) is one that may be published.
+  std::string identity;
 
   template <typename V>
   void Visit(V&& v) {
@@ -35,6 +38,7 @@ struct DatasetInspectOptions {
     v("seed", seed, "Seed of the pair choice");
     v("kind", kind, "Pairs on the contact sheet: real (training split) or synthetic");
     v("histograms", histograms, "Histogram PNG of clip and synthetic pairs (default DIR/histograms.png)");
+    v("identity", identity, "Only pairs of this identity (a name in split.json) on the contact sheet");
   }
   // Throws InvalidOptions (pairs, kind; not the folder).
   void Validate() const;

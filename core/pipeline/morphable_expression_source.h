@@ -36,7 +36,7 @@ class MorphableExpressionSource : public ExpressionImageSource {
   std::vector<std::string> ControlNames() const override;
   int CoefficientCount() const override { return model_.num_expression(); }
   // The target beta Render uses: ExpressionBeta(model, fit beta, expression).
-  morphable::Beta Coefficients(const Expression& expression) const;
+  morphable::Beta Coefficients(const Expression& expression) const override;
   std::string Kind() const override { return "morphable"; }
   std::string Serialize() const override;
   // Rebuilds a source from Serialize() bytes with the default morphable model. Throws

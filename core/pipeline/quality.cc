@@ -20,6 +20,7 @@
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/model_config.h"
+#include "core/pipeline/benchmarks.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
@@ -89,13 +90,6 @@ std::string Millis(double s) {
   return buf;
 }
 
-double Median(std::vector<double> v) {
-  AVATAR_CHECK(!v.empty()) << "median of nothing";
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 == 1 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 std::string UtcNow() {
   const std::time_t now = std::time(nullptr);
   std::tm tm{};
@@ -135,14 +129,20 @@ cv::Mat ProbePortrait() {
 // I_exp of the probe: the portrait itself, whatever the expression (only timing matters).
 class ProbeExpressionSource : public ExpressionImageSource {
  public:
+  // `coefficients`: the zero expression's beta for a network with expression bases (empty: none).
+  explicit ProbeExpressionSource(std::vector<float> coefficients) : coefficients_(std::move(coefficients)) {}
   cv::Mat Render(const Expression& /*expression*/, int size) const override {
     cv::Mat out;
     cv::resize(ProbePortrait(), out, cv::Size(size, size), 0, 0, cv::INTER_AREA);
     return out;
   }
+  std::vector<float> Coefficients(const Expression& /*expression*/) const override { return coefficients_; }
   std::vector<std::string> ControlNames() const override { return {}; }
   std::string Kind() const override { return "quality-probe"; }
   std::string Serialize() const override { return {}; }
+
+ private:
+  std::vector<float> coefficients_;
 };
 
 json EntryJson(const QualityEstimates& e) {
@@ -399,7 +399,12 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
   const std::string stage = "measure quality ladder";
   const face::AlignedPortrait portrait = PortraitFromAlignedImage(ProbePortrait());
   SourceFit fit;
-  fit.expressions = std::make_shared<ProbeExpressionSource>();
+  std::vector<float> probe_beta;
+  if (!info.config_json.empty()) {
+    const ModelConfig config = ModelConfigFromJson(info.config_json);
+    if (config.expression_bases()) probe_beta.assign(config.expression_coefficients, 0.0f);
+  }
+  fit.expressions = std::make_shared<ProbeExpressionSource>(std::move(probe_beta));
   {
     // The frontal camera C_front with the default intrinsics.
     torch::InferenceMode inference;
@@ -409,15 +414,11 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
   // Progress: reconstruction 0..0.2, refinement 0.2..0.6, frames 0.6..1.
   ctx.Report(stage, 0.0, "one-shot reconstruction");
   Avatar avatar;
-  std::vector<double> one_shot;
-  for (int i = 0; i <= repeats; ++i) {
+  ctx.ThrowIfCancelled();
+  e.one_shot_seconds = MedianSeconds(repeats, ctx, [&] {
     RunContext inner;
-    ctx.ThrowIfCancelled();
-    Timer t;
     avatar = session.ReconstructFromAnalysis(portrait, fit, inner);
-    if (i > 0) one_shot.push_back(t.Seconds());  // the first run warms up
-  }
-  e.one_shot_seconds = Median(one_shot);
+  });
 
   ctx.Report(stage, 0.2, "refinement steps");
   RefineTarget target;
@@ -443,16 +444,12 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
     const QualityPreset& p = ladder[i];
     ctx.Report(stage, 0.6 + 0.4 * static_cast<double>(i) / static_cast<double>(ladder.size()), "frames: " + p.name);
     const RenderSettings settings = p.Render(info);
-    std::vector<double> frames;
-    for (int r = 0; r <= repeats; ++r) {
-      ctx.ThrowIfCancelled();
-      Timer t;
-      session.Animate(avatar, Expression{}, fit.camera, settings);
-      if (r > 0) frames.push_back(t.Seconds());
-    }
+    ctx.ThrowIfCancelled();
+    const double frame =
+        MedianSeconds(repeats, ctx, [&] { session.Animate(avatar, Expression{}, fit.camera, settings); });
     QualityEstimate q;
     q.preset = p.name;
-    q.frame_seconds = std::max(1e-6, Median(frames));
+    q.frame_seconds = std::max(1e-6, frame);
     const RefineOptions ro = p.Refine(refine_base);
     double refine = 0.0;
     if (ro.Enabled()) {

@@ -113,6 +113,29 @@ struct Session::Impl {
   mutable std::list<std::pair<std::string, std::shared_ptr<CachedPlanes>>> cache;
   mutable std::atomic<int64_t> expression_images{0};
 
+  // T_e [1,3,C,P,P] of `expression`, the one path of frames and refinement: E_e over the I_exp
+  // that `source` renders, or, for a network with expression bases, the bases mixed by the
+  // expression's morphable coefficients (the beta that I_exp shows).
+  torch::Tensor ExpressionPlanes(const ExpressionImageSource& source, const Expression& expression,
+                                 RunContext* ctx) const {
+    if (model->config().expression_bases()) {
+      const std::vector<float> beta = source.Coefficients(expression);
+      AVATAR_CHECK_INPUT(!beta.empty()) << "the model's expression planes come from morphable expression coefficients "
+                                           "(expression_model bases), and this avatar's expression source ("
+                                        << source.Kind() << ") has none; reconstruct the avatar from a photo";
+      if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
+      return model->ExpressionPlanesFromCoefficients(torch::tensor(beta, torch::kFloat32).unsqueeze(0));
+    }
+    const int s = model->config().image_size;
+    if (ctx != nullptr) ctx->Report("animate", 0.1, "expression image");
+    const cv::Mat exp_image = source.Render(expression, s);
+    ++expression_images;
+    AVATAR_CHECK(exp_image.type() == CV_8UC3 && exp_image.rows == s && exp_image.cols == s)
+        << "expression source returned a " << exp_image.cols << "x" << exp_image.rows << " image, expected " << s;
+    if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
+    return model->ExpressionPlanes(ImageToTensor(exp_image, s, "I_exp"));
+  }
+
   // The entry's grid, or null at its first request (see CachedPlanes).
   std::shared_ptr<const render::OccupancyGrid> GridFor(CachedPlanes& entry) const {
     std::lock_guard<std::mutex> lock(entry.grid_mutex);
@@ -133,15 +156,8 @@ struct Session::Impl {
       }
     }
     AVATAR_CHECK_INPUT(state.expressions != nullptr) << "this avatar has no expression source";
-    const int s = model->config().image_size;
-    if (ctx != nullptr) ctx->Report("animate", 0.1, "expression image");
-    const cv::Mat exp_image = state.expressions->Render(expression, s);
-    ++expression_images;
-    AVATAR_CHECK(exp_image.type() == CV_8UC3 && exp_image.rows == s && exp_image.cols == s)
-        << "expression source returned a " << exp_image.cols << "x" << exp_image.rows << " image, expected " << s;
-    if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
     auto entry = std::make_shared<CachedPlanes>();
-    entry->planes = state.base + model->ExpressionPlanes(ImageToTensor(exp_image, s, "I_exp"));
+    entry->planes = state.base + ExpressionPlanes(*state.expressions, expression, ctx);
     std::lock_guard<std::mutex> lock(cache_mutex);
     cache.emplace_front(key, entry);
     while (static_cast<int>(cache.size()) > options.expression_cache) cache.pop_back();
@@ -416,13 +432,7 @@ torch::Tensor SessionAccess::ExpressionPlanes(const Session& session, const Avat
   const AvatarState& state = *avatar.state_;
   if (state.expressions == nullptr) return {};
   torch::NoGradGuard no_grad;
-  GohaModel& model = session.impl_->model;
-  const int s = model->config().image_size;
-  const cv::Mat image = state.expressions->Render(expression, s);
-  ++session.impl_->expression_images;
-  AVATAR_CHECK(image.type() == CV_8UC3 && image.rows == s && image.cols == s)
-      << "expression source returned a " << image.cols << "x" << image.rows << " image, expected " << s;
-  return model->ExpressionPlanes(ImageToTensor(image, s, "I_exp"));
+  return session.impl_->ExpressionPlanes(*state.expressions, expression, nullptr);
 }
 
 Avatar SessionAccess::WithPlanes(const Avatar& avatar, const torch::Tensor& canonical,

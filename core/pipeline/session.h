@@ -13,7 +13,8 @@
 //
 // What Animate recomputes (instrumented by Counters()):
 //   - a new view only: no encoder; one volume render of the cached planes T_c + T_p + T_e;
-//   - a new expression: the morphable render I_exp and E_e (T_e), then the render;
+//   - a new expression: the morphable render I_exp and E_e (T_e), then the render (a network with
+//     expression bases mixes T_e from the expression's morphable coefficients instead: no I_exp);
 //   - super-resolution only for Preset::kFinal.
 // Frames are rendered with the inference skips on (RenderSettings, SessionOptions::render_skips):
 // early ray termination, rays missing the box, and empty-space skipping through an occupancy
@@ -57,6 +58,14 @@ class ExpressionImageSource {
   virtual std::vector<std::string> ControlNames() const = 0;
   // Length of Expression::coefficients Render understands (0 = coefficients are not supported).
   virtual int CoefficientCount() const { return 0; }
+  // The morphable expression coefficients beta of the whole Expression, the face Render shows:
+  // what a network with expression bases (ModelConfig expression_model "bases") mixes its T_e
+  // from instead of I_exp. Empty (the default) = this source has no morphable coefficients.
+  // Throws as Render. Must be thread-safe.
+  virtual std::vector<float> Coefficients(const Expression& expression) const {
+    (void)expression;
+    return {};
+  }
   // Type tag and state, stored in avatar files (see RegisterExpressionSourceLoader).
   virtual std::string Kind() const = 0;
   virtual std::string Serialize() const = 0;

@@ -103,6 +103,10 @@ struct TrainingRunOptions {
     v("d_lr", trainer.d_lr, "Stage II: discriminator learning rate");
     v("rotation", trainer.rotation, "The release's mod-6 rotation of step kinds");
     v("max_bad_steps", trainer.max_bad_steps, "Non-finite steps in a row that stop the run");
+    v("patch_size", trainer.patch_size,
+      "Stage I: render random target patches of this side at the target camera (0 = whole images)");
+    v("grad_chunk_rays", trainer.grad_chunk_rays,
+      "Stage I: rays per chunk of ray-chunked renders with gradients (0 = off; less memory, same gradients)");
     v("seed", trainer.seed, "Seed of the initialisation, the renders' jitter and the data order");
     v("deterministic_render", trainer.deterministic_render,
       "Training renders without sample jitter (with --tv-weight 0, W ranks then take exactly one process's steps)");

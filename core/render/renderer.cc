@@ -1,9 +1,12 @@
 #include "core/render/renderer.h"
 
 #include <ATen/Parallel.h>
+#include <torch/csrc/autograd/function.h>
+#include <torch/csrc/autograd/functions/utils.h>
 
 #include <cmath>
 #include <limits>
+#include <mutex>
 
 #include "core/render/depth_sampling.h"
 #include "core/render/ray_marcher.h"
@@ -56,6 +59,11 @@ void RenderOptions::Validate() const {
   AVATAR_CHECK_OPTION(termination_block >= 1) << "termination_block must be >= 1, got " << termination_block;
   AVATAR_CHECK_OPTION(std::isfinite(miss_margin) && miss_margin >= 0.0 && miss_margin <= 1.0)
       << "miss_margin must be in [0,1], got " << miss_margin;
+  AVATAR_CHECK_OPTION(window_size >= 0 && window_size <= resolution)
+      << "window_size must be 0 (whole image) or 1.." << resolution << ", got " << window_size;
+  AVATAR_CHECK_OPTION(window_size == 0 || window_corners.defined())
+      << "a pixel window (window_size " << window_size << ") needs window_corners [B,2]";
+  AVATAR_CHECK_OPTION(grad_chunk_rays >= 0) << "grad_chunk_rays must be >= 0, got " << grad_chunk_rays;
 }
 
 Field MakeTriplaneField(const torch::Tensor& planes, PointDecoder decoder, double box_warp, RenderProfile* profile) {
@@ -353,14 +361,196 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
   return out;
 }
 
+namespace {
+
+// Image side of a render: the window's or the whole image's.
+int64_t ImageSide(const RenderOptions& options) {
+  return options.window_size > 0 ? options.window_size : options.resolution;
+}
+
+// The rays of the whole image or of its window.
+Rays RaysFor(const Cameras& cameras, const RenderOptions& options) {
+  if (options.window_size > 0)
+    return GenerateWindowRays(cameras, options.resolution, options.window_corners, options.window_size);
+  return GenerateRays(cameras, options.resolution);
+}
+
+// Ray chunks [start, start + len) concatenated along the rays.
+RayRenderOutput Concatenate(const std::vector<RayRenderOutput>& parts, const RenderOptions& options) {
+  const auto gather = [&](auto member) {
+    std::vector<torch::Tensor> pieces;
+    pieces.reserve(parts.size());
+    for (const auto& p : parts) pieces.push_back(p.*member);
+    return torch::cat(pieces, 1);
+  };
+  RayRenderOutput out;
+  out.features = gather(&RayRenderOutput::features);
+  if (options.return_opacity) out.opacity = gather(&RayRenderOutput::opacity);
+  if (options.return_depth) out.depth = gather(&RayRenderOutput::depth);
+  if (options.return_weights) {
+    out.weights = gather(&RayRenderOutput::weights);
+    out.midpoints = gather(&RayRenderOutput::midpoints);
+  }
+  return out;
+}
+
+// Per-ray results [B, side^2, ...] as images [B, C, side, side].
+RenderOutput ToImages(const RayRenderOutput& rendered, int64_t b, int64_t side) {
+  RenderOutput out;
+  const int64_t c = rendered.features.size(2);
+  out.features = rendered.features.view({b, side, side, c}).permute({0, 3, 1, 2}).contiguous();
+  if (c >= 3) out.rgb = out.features.narrow(1, 0, 3);
+  if (rendered.opacity.defined()) out.opacity = rendered.opacity.view({b, 1, side, side});
+  if (rendered.depth.defined()) out.depth = rendered.depth.view({b, 1, side, side});
+  out.weights = rendered.weights;
+  out.midpoints = rendered.midpoints;
+  return out;
+}
+
+// The backward pass of a ray-chunked render (RenderOptions::grad_chunk_rays): renders each chunk
+// again with gradients, from a detached copy of the planes and with the jitter generator's state
+// that chunk's forward render started from, and returns the summed gradients of the planes
+// (input 0) and of the grad_parameters (inputs 1..).
+class ChunkedRenderBackward : public torch::autograd::Node {
+ public:
+  explicit ChunkedRenderBackward(torch::autograd::edge_list&& next) : Node(std::move(next)) {}
+  std::string name() const override { return "avatar::render::ChunkedRenderBackward"; }
+
+  torch::autograd::variable_list apply(torch::autograd::variable_list&& grads) override {
+    torch::autograd::variable_list out(num_outputs());
+    AVATAR_CHECK(!released_) << "a ray-chunked render was backpropagated twice without retain_graph";
+    const torch::Tensor& grad = grads.at(0);  // [B,N,C] of the ray features
+    if (!grad.defined()) return out;
+    torch::AutoGradMode grad_mode(true);
+    torch::Tensor leaf = planes.detach();
+    std::vector<torch::Tensor> inputs;
+    std::vector<size_t> slots;
+    if (should_compute_output(0) && planes_need_grad) {
+      leaf.requires_grad_(true);
+      inputs.push_back(leaf);
+      slots.push_back(0);
+    }
+    for (size_t i = 0; i < parameters.size(); ++i) {
+      if (!should_compute_output(i + 1) || !parameters[i].requires_grad()) continue;
+      inputs.push_back(parameters[i]);
+      slots.push_back(i + 1);
+    }
+    if (inputs.empty()) return out;
+    const Field field = MakeTriplaneField(leaf, decoder, options.box_warp);
+    std::vector<torch::Tensor> sums(inputs.size());
+    const int64_t n = origins.size(1);
+    for (int64_t start = 0, i = 0; start < n; start += chunk, ++i) {
+      const int64_t len = std::min(chunk, n - start);
+      c10::optional<at::Generator> generator;
+      if (generators[static_cast<size_t>(i)].has_value()) generator = generators[static_cast<size_t>(i)]->clone();
+      const RayRenderOutput r =
+          RenderRays(field, origins.narrow(1, start, len), directions.narrow(1, start, len), options, generator);
+      const torch::autograd::variable_list g = torch::autograd::grad({r.features}, inputs, {grad.narrow(1, start, len)},
+                                                                     /*retain_graph=*/false, /*create_graph=*/false,
+                                                                     /*allow_unused=*/true);
+      for (size_t k = 0; k < g.size(); ++k)
+        if (g[k].defined()) sums[k] = sums[k].defined() ? sums[k] + g[k] : g[k];
+    }
+    for (size_t k = 0; k < slots.size(); ++k) out[slots[k]] = sums[k];
+    return out;
+  }
+
+  void release_variables() override {
+    planes = torch::Tensor();
+    origins = torch::Tensor();
+    directions = torch::Tensor();
+    generators.clear();
+    released_ = true;
+  }
+
+  torch::Tensor planes;  // detached
+  bool planes_need_grad = false;
+  std::vector<torch::Tensor> parameters;  // as given: their gradients are returned
+  PointDecoder decoder;
+  RenderOptions options;              // the chunks' options
+  torch::Tensor origins, directions;  // [B,N,3], detached
+  int64_t chunk = 1;
+  std::vector<c10::optional<at::Generator>> generators;  // per chunk (none: deterministic)
+
+ private:
+  bool released_ = false;
+};
+
+// RenderTriplanes with options.grad_chunk_rays in grad mode (see RenderOptions).
+RenderOutput RenderChunkedWithGrad(const torch::Tensor& planes, const PointDecoder& decoder, const Cameras& cameras,
+                                   const RenderOptions& options, c10::optional<at::Generator> generator,
+                                   RenderProfile* profile) {
+  const Rays rays = RaysFor(cameras, options);
+  const torch::Tensor origins = rays.origins.detach(), directions = rays.directions.detach();
+  RenderOptions chunk_options = options;
+  chunk_options.window_size = 0;
+  chunk_options.window_corners = torch::Tensor();
+  chunk_options.grad_chunk_rays = 0;
+  chunk_options.grad_parameters.clear();
+  // Computed exactly as an unchunked training render: no inference skips.
+  chunk_options.early_termination = false;
+  chunk_options.skip_missed_rays = false;
+  chunk_options.skip_empty_space = false;
+  chunk_options.occupancy.reset();
+  const int64_t n = origins.size(1), chunk = options.grad_chunk_rays;
+  // Jittered samples: the generator given, or the default one of the rays' device (the one
+  // RenderRays would use); each chunk's backward render restarts from a copy of its state.
+  c10::optional<at::Generator> jitter = generator;
+  if (!chunk_options.deterministic && !jitter.has_value())
+    jitter = at::globalContext().defaultGenerator(origins.device());
+  std::vector<c10::optional<at::Generator>> states;
+  std::vector<RayRenderOutput> parts;
+  {
+    torch::NoGradGuard no_grad;
+    const Field field = MakeTriplaneField(planes, decoder, chunk_options.box_warp, profile);
+    for (int64_t start = 0; start < n; start += chunk) {
+      const int64_t len = std::min(chunk, n - start);
+      if (jitter.has_value()) {
+        std::lock_guard<std::mutex> lock(jitter->mutex());
+        states.emplace_back(jitter->clone());
+      } else {
+        states.emplace_back(c10::nullopt);
+      }
+      parts.push_back(RenderRays(field, origins.narrow(1, start, len), directions.narrow(1, start, len), chunk_options,
+                                 jitter, profile));
+    }
+  }
+  RayRenderOutput rendered = Concatenate(parts, chunk_options);
+  parts.clear();
+  bool any_grad = planes.requires_grad();
+  for (const auto& p : options.grad_parameters) any_grad = any_grad || (p.defined() && p.requires_grad());
+  if (any_grad) {
+    torch::autograd::edge_list edges = torch::autograd::collect_next_edges(planes);
+    for (const auto& p : options.grad_parameters) {
+      torch::autograd::edge_list e = torch::autograd::collect_next_edges(p);
+      edges.insert(edges.end(), e.begin(), e.end());
+    }
+    auto node = std::shared_ptr<ChunkedRenderBackward>(new ChunkedRenderBackward(std::move(edges)),
+                                                       torch::autograd::deleteNode);
+    node->planes = planes.detach();
+    node->planes_need_grad = planes.requires_grad();
+    node->parameters = options.grad_parameters;
+    node->decoder = decoder;
+    node->options = chunk_options;
+    node->origins = origins;
+    node->directions = directions;
+    node->chunk = chunk;
+    node->generators = std::move(states);
+    torch::autograd::set_history(rendered.features, node);
+  }
+  return ToImages(rendered, cameras.batch(), ImageSide(options));
+}
+
+}  // namespace
+
 RenderOutput RenderField(const Field& field, const Cameras& cameras, const RenderOptions& options,
                          c10::optional<at::Generator> generator, RenderProfile* profile) {
   options.Validate();
   CheckCameras(cameras);
-  const int64_t res = options.resolution;
   const int64_t b = cameras.batch();
-  const Rays rays = GenerateRays(cameras, res);
-  const int64_t n = res * res;
+  const int64_t side = ImageSide(options);
+  const Rays rays = RaysFor(cameras, options);
+  const int64_t n = side * side;
   RayRenderOutput rendered;
   if (torch::GradMode::is_enabled()) {
     rendered = RenderRays(field, rays.origins, rays.directions, options, generator, profile);
@@ -380,29 +570,9 @@ RenderOutput RenderField(const Field& field, const Cameras& cameras, const Rende
                                                    rays.directions.narrow(1, start, len), options, generator, profile);
       }
     });
-    const auto gather = [&](auto member) {
-      std::vector<torch::Tensor> pieces;
-      pieces.reserve(parts.size());
-      for (const auto& p : parts) pieces.push_back(p.*member);
-      return torch::cat(pieces, 1);
-    };
-    rendered.features = gather(&RayRenderOutput::features);
-    if (options.return_opacity) rendered.opacity = gather(&RayRenderOutput::opacity);
-    if (options.return_depth) rendered.depth = gather(&RayRenderOutput::depth);
-    if (options.return_weights) {
-      rendered.weights = gather(&RayRenderOutput::weights);
-      rendered.midpoints = gather(&RayRenderOutput::midpoints);
-    }
+    rendered = Concatenate(parts, options);
   }
-  RenderOutput out;
-  const int64_t c = rendered.features.size(2);
-  out.features = rendered.features.view({b, res, res, c}).permute({0, 3, 1, 2}).contiguous();
-  if (c >= 3) out.rgb = out.features.narrow(1, 0, 3);
-  if (rendered.opacity.defined()) out.opacity = rendered.opacity.view({b, 1, res, res});
-  if (rendered.depth.defined()) out.depth = rendered.depth.view({b, 1, res, res});
-  out.weights = rendered.weights;
-  out.midpoints = rendered.midpoints;
-  return out;
+  return ToImages(rendered, b, side);
 }
 
 RenderOutput RenderTriplanes(const torch::Tensor& planes, const PointDecoder& decoder, const Cameras& cameras,
@@ -414,6 +584,11 @@ RenderOutput RenderTriplanes(const torch::Tensor& planes, const PointDecoder& de
   AVATAR_CHECK_INPUT(planes.scalar_type() == cameras.cam2world.scalar_type() &&
                      planes.device() == cameras.cam2world.device())
       << "tri-planes and cameras must share dtype and device";
+  options.Validate();
+  const int64_t side = ImageSide(options);
+  if (options.grad_chunk_rays > 0 && torch::GradMode::is_enabled() && side * side > options.grad_chunk_rays) {
+    return RenderChunkedWithGrad(planes, decoder, cameras, options, generator, profile);
+  }
   return RenderField(MakeTriplaneField(planes, decoder, options.box_warp, profile), cameras, options, generator,
                      profile);
 }

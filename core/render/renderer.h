@@ -9,7 +9,8 @@
 //   out.rgb  // [B,3,128,128] in [-1,1]
 //
 // Gradients flow to the planes, the decoder and any tensors an injected field uses. In grad
-// mode the whole batch is rendered as one autograd graph; with grad mode off (NoGradGuard or
+// mode the whole batch is rendered as one autograd graph (RenderTriplanes with
+// RenderOptions::grad_chunk_rays: one chunk of rays at a time); with grad mode off (NoGradGuard or
 // InferenceMode) rays are rendered in chunks in parallel with the fast CPU plane sampler.
 // The result is the same either way (to float rounding).
 
@@ -17,6 +18,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <vector>
 
 #include <torch/torch.h>
 
@@ -68,6 +70,26 @@ struct RenderOptions {
   // Outputs computed only when asked (default: both; undefined tensors when off).
   bool return_depth = true;
   bool return_opacity = true;
+  // Training on patches: render only a window of the resolution x resolution image of each
+  // camera, window_size x window_size pixels whose top-left pixel (row, column) is
+  // window_corners[b] (an integer tensor [B,2], any device). The rays are the whole image's rays
+  // of those pixels (GenerateWindowRays), so a window render equals the crop of the whole render;
+  // image outputs are [B,C,window_size,window_size], weights [B,window_size^2,S-1].
+  // 0 = the whole image.
+  int window_size = 0;
+  torch::Tensor window_corners;
+  // Ray-chunked renders with gradients (RenderTriplanes only; training memory): when > 0, grad
+  // mode is on and a camera has more rays than this, the image is rendered without gradients in
+  // chunks of grad_chunk_rays rays (each with its own copy of the jitter generator's state), and
+  // the backward pass renders each chunk again with gradients from a detached copy of the planes
+  // and the same sample positions, and sums the gradients of the planes and of grad_parameters.
+  // Only the activations of one chunk are held at a time. Features (and rgb) carry the
+  // gradient; opacity, depth and weights come without one. The inference skips are not used.
+  // 0 = off (one autograd graph for every ray).
+  int grad_chunk_rays = 0;
+  // Chunked renders: the tensors the decoder reads that need gradients (e.g. the decoder's
+  // parameters). A tensor not listed gets no gradient from a chunked render.
+  std::vector<torch::Tensor> grad_parameters;
 
   // Turns on every inference skip above (not the output flags).
   void EnableInferenceSkips() {
@@ -90,7 +112,8 @@ struct RenderOptions {
   }
   // Throws InvalidOptions: resolution 1..4096, num_coarse >= 2 (>= 4 with importance samples),
   // num_importance >= 0, 0 <= near < far finite, box_warp > 0, chunk_rays >= 1,
-  // termination_transmittance in [0,1), termination_block >= 1, miss_margin in [0,1].
+  // termination_transmittance in [0,1), termination_block >= 1, miss_margin in [0,1],
+  // 0 <= window_size <= resolution (with corners when > 0), grad_chunk_rays >= 0.
   void Validate() const;
 };
 
@@ -151,7 +174,8 @@ RayRenderOutput RenderRays(const Field& field, const torch::Tensor& origins, con
 RenderOutput RenderField(const Field& field, const Cameras& cameras, const RenderOptions& options,
                          c10::optional<at::Generator> generator = c10::nullopt, RenderProfile* profile = nullptr);
 
-// Renders tri-planes [B,3,C,H,W] from cameras (B cameras, one per plane set).
+// Renders tri-planes [B,3,C,H,W] from cameras (B cameras, one per plane set). With
+// options.grad_chunk_rays (see there) a render with gradients is ray-chunked.
 RenderOutput RenderTriplanes(const torch::Tensor& planes, const PointDecoder& decoder, const Cameras& cameras,
                              const RenderOptions& options, c10::optional<at::Generator> generator = c10::nullopt,
                              RenderProfile* profile = nullptr);

@@ -15,6 +15,7 @@
 #include <torch/csrc/jit/serialization/import_read.h>
 #include <torch/serialize.h>
 
+#include "core/train/shard_check.h"
 #include "core/util/error.h"
 
 namespace avatar::train {
@@ -47,8 +48,10 @@ class CheckedShardBytes : public caffe2::serialize::ReadAdapterInterface {
   const std::vector<char>& bytes_;
 };
 
-// torch::pickle_load (a zip archive holding data.pkl) over CheckedShardBytes.
+// torch::pickle_load (a zip archive holding data.pkl) over CheckedShardBytes, after CheckShard has
+// bounded every length that LibTorch would allocate before reading (shard_check.h).
 c10::IValue LoadPickledShard(const std::vector<char>& bytes) {
+  CheckShard(bytes);
   caffe2::serialize::PyTorchStreamReader reader(std::make_shared<CheckedShardBytes>(bytes));
   return torch::jit::readArchiveAndTensors("data", "", "", c10::nullopt, c10::nullopt, c10::nullopt, reader);
 }
@@ -183,6 +186,12 @@ std::vector<int64_t> TrainDataset::Identities() const {
   const auto a = identity_.accessor<int64_t, 1>();
   for (int64_t i = 0; i < a.size(0); ++i) ids.insert(a[i]);
   return {ids.begin(), ids.end()};
+}
+
+int64_t TrainDataset::PairIdentity(int64_t index) const {
+  if (index < 0 || index >= size())
+    throw InvalidInput("pair " + std::to_string(index) + " out of range [0," + std::to_string(size()) + ")");
+  return identity_[pairs_[index][0].item<int64_t>()].item<int64_t>();
 }
 
 TrainSample TrainDataset::Get(int64_t index) const {

@@ -33,6 +33,9 @@ class TrainDataset {
   int64_t CountKind(PairKind kind) const;
   // Distinct identity ids of this split.
   std::vector<int64_t> Identities() const;
+  // Identity id of pair `index` (its source frame's) without loading the pair. Throws InvalidInput
+  // for an index out of range.
+  int64_t PairIdentity(int64_t index) const;
 
   // Pair `index` in [0,size()). Images in [-1,1] with a black background outside the matte.
   // Throws InvalidInput for an index out of range.

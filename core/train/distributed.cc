@@ -268,22 +268,7 @@ void ProcessGroupReducer::AllMax(std::vector<double>& values) {
 }
 
 TrainBatch SliceBatch(const TrainBatch& b, int64_t start, int64_t count) {
-  auto part = [&](const torch::Tensor& t) { return t.defined() ? t.narrow(0, start, count) : t; };
-  TrainBatch out;
-  out.source = part(b.source);
-  out.source_matte = part(b.source_matte);
-  out.source_eye_mouth = part(b.source_eye_mouth);
-  out.source_label = part(b.source_label);
-  out.target = part(b.target);
-  out.target_matte = part(b.target_matte);
-  out.target_label = part(b.target_label);
-  out.expression_image = part(b.expression_image);
-  out.neutral_image = part(b.neutral_image);
-  out.neutral_mask = part(b.neutral_mask);
-  out.target_expression = part(b.target_expression);
-  out.kind = part(b.kind);
-  out.identity = part(b.identity);
-  return out;
+  return b.Map([&](const torch::Tensor& t) { return t.narrow(0, start, count); });
 }
 
 ShardedBatchSource::ShardedBatchSource(BatchSource& inner, int64_t rank, int64_t world_size)

@@ -44,21 +44,28 @@ TrainBatch Collate(const std::vector<TrainSample>& samples) {
 }
 
 TrainBatch TrainBatch::To(const torch::Device& device) const {
-  auto f = [&](const torch::Tensor& t) { return t.defined() ? t.to(device, torch::kFloat32) : t; };
-  TrainBatch b;
-  b.source = f(source);
-  b.source_matte = f(source_matte);
-  b.source_eye_mouth = f(source_eye_mouth);
-  b.source_label = f(source_label);
-  b.target = f(target);
-  b.target_matte = f(target_matte);
-  b.target_label = f(target_label);
-  b.expression_image = f(expression_image);
-  b.neutral_image = f(neutral_image);
-  b.neutral_mask = f(neutral_mask);
-  b.target_expression = f(target_expression);
+  TrainBatch b = Map([&](const torch::Tensor& t) { return t.to(device, torch::kFloat32); });
   b.kind = kind.defined() ? kind.to(device) : kind;
   b.identity = identity.defined() ? identity.to(device) : identity;
+  return b;
+}
+
+TrainBatch TrainBatch::Map(const std::function<torch::Tensor(const torch::Tensor&)>& f) const {
+  auto g = [&](const torch::Tensor& t) { return t.defined() ? f(t) : t; };
+  TrainBatch b;
+  b.source = g(source);
+  b.source_matte = g(source_matte);
+  b.source_eye_mouth = g(source_eye_mouth);
+  b.source_label = g(source_label);
+  b.target = g(target);
+  b.target_matte = g(target_matte);
+  b.target_label = g(target_label);
+  b.expression_image = g(expression_image);
+  b.neutral_image = g(neutral_image);
+  b.neutral_mask = g(neutral_mask);
+  b.target_expression = g(target_expression);
+  b.kind = g(kind);
+  b.identity = g(identity);
   return b;
 }
 

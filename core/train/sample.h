@@ -9,6 +9,7 @@
 // convention. S is the dataset's image size (dataset.json "size").
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,8 @@ struct TrainBatch {
   int64_t size() const { return source.defined() ? source.size(0) : 0; }
   // Every tensor moved/cast to `device` (images float32).
   TrainBatch To(const torch::Device& device) const;
+  // Every defined tensor through `f` (undefined ones stay undefined), e.g. a slice of the samples.
+  TrainBatch Map(const std::function<torch::Tensor(const torch::Tensor&)>& f) const;
 };
 
 // Stacks samples (all of one image size). Throws InvalidInput on mismatched shapes.

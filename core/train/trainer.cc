@@ -184,6 +184,16 @@ bool ReduceOverRanks(GradientReducer& reducer, bool local_ok, const std::vector<
   return all_ok;
 }
 
+// The windows [B,C,size,size] of images [B,C,H,W] whose top-left pixels (row, column) are
+// corners [B,2] (CPU int64).
+torch::Tensor CropWindows(const torch::Tensor& images, const torch::Tensor& corners, int64_t size) {
+  const auto at = corners.accessor<int64_t, 2>();
+  std::vector<torch::Tensor> crops;
+  for (int64_t i = 0; i < images.size(0); ++i)
+    crops.push_back(images[i].narrow(1, at[i][0], size).narrow(2, at[i][1], size));
+  return torch::stack(crops);
+}
+
 }  // namespace
 
 void TrainerOptions::Validate() const {
@@ -201,6 +211,8 @@ void TrainerOptions::Validate() const {
   AVATAR_CHECK_OPTION(r1_gamma >= 0 && std::isfinite(r1_gamma)) << "r1_gamma must be >= 0";
   AVATAR_CHECK_OPTION(r1_every >= 1) << "r1_every must be >= 1";
   AVATAR_CHECK_OPTION(d_lr > 0 && std::isfinite(d_lr)) << "d_lr must be > 0";
+  AVATAR_CHECK_OPTION(patch_size >= 0) << "patch_size must be >= 0 (0 = whole images), got " << patch_size;
+  AVATAR_CHECK_OPTION(grad_chunk_rays >= 0) << "grad_chunk_rays must be >= 0 (0 = off), got " << grad_chunk_rays;
   try {
     (void)torch::Device(device);
   } catch (const std::exception&) {
@@ -329,38 +341,43 @@ std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch
 
   const render::Cameras source_cam = render::CamerasFromLabels(b.source_label);
   const render::Cameras target_cam = render::CamerasFromLabels(b.target_label);
-  const torch::Tensor target = ResizeTo(Matte(b.target, b.target_matte), res);
+  torch::Tensor target = ResizeTo(Matte(b.target, b.target_matte), res);
+  // Patches: one window per sample for the target-camera renders, from the global CPU generator
+  // (its state is part of the training state), and the same window of the target.
+  torch::Tensor corners;
+  if (recon && options_.patch_size > 0 && options_.patch_size < res) {
+    corners = torch::randint(res - options_.patch_size + 1, {b.size(), 2}, torch::TensorOptions().dtype(torch::kLong));
+    target = CropWindows(target, corners, options_.patch_size);
+  }
 
   std::map<std::string, torch::Tensor> terms;
   const torch::Tensor tc = model_->CanonicalPlanes(b.source);
   torch::Tensor largest = tc;
   CheckCancel();
   if (recon) {
-    terms["canonical"] = ImageLoss(model_->Render(tc, target_cam, 0, options_.deterministic_render).rgb, target,
-                                   perceptual_, options_.perceptual_weight)
-                             .mean();
+    terms["canonical"] =
+        ImageLoss(TrainingRender(tc, target_cam, corners), target, perceptual_, options_.perceptual_weight).mean();
     if (with_expression) {
       CheckCancel();
       const torch::Tensor tce = tc + model_->ExpressionPlanesFor(b.expression_image, b.target_expression);
       largest = tce;
-      terms["expression"] = ImageLoss(model_->Render(tce, target_cam, 0, options_.deterministic_render).rgb, target,
-                                      perceptual_, options_.perceptual_weight)
-                                .mean();
+      terms["expression"] =
+          ImageLoss(TrainingRender(tce, target_cam, corners), target, perceptual_, options_.perceptual_weight).mean();
       if (full) {
         CheckCancel();
         const torch::Tensor tp =
             model_->AppearancePlanes(b.source, b.source_eye_mouth, b.source_matte, tc, source_cam).planes;
         const torch::Tensor tcep = tce + tp;
         largest = tcep;
-        terms["appearance"] = ImageLoss(model_->Render(tcep, target_cam, 0, options_.deterministic_render).rgb, target,
-                                        perceptual_, options_.perceptual_weight)
-                                  .mean();
+        terms["appearance"] =
+            ImageLoss(TrainingRender(tcep, target_cam, corners), target, perceptual_, options_.perceptual_weight)
+                .mean();
       }
     }
   }
   if (neutral && options_.neutral_weight > 0) {
     CheckCancel();
-    const torch::Tensor ic_source = model_->Render(tc, source_cam, 0, options_.deterministic_render).rgb;
+    const torch::Tensor ic_source = TrainingRender(tc, source_cam);
     terms["neutral"] =
         options_.neutral_weight *
         NeutralLoss(ic_source, b.neutral_image, b.neutral_mask, perceptual_, options_.perceptual_weight).mean();
@@ -379,6 +396,39 @@ std::map<std::string, torch::Tensor> StageOneTrainer::LossTerms(const TrainBatch
   return terms;
 }
 
+torch::Tensor StageOneTrainer::TrainingRender(const torch::Tensor& planes, const render::Cameras& cameras,
+                                              const torch::Tensor& corners) {
+  render::RenderOptions opts = model_->RenderOptionsFor(0, options_.deterministic_render);
+  if (corners.defined()) {
+    opts.window_size = static_cast<int>(options_.patch_size);
+    opts.window_corners = corners;
+  }
+  if (options_.grad_chunk_rays > 0) {
+    opts.grad_chunk_rays = static_cast<int>(std::min<int64_t>(options_.grad_chunk_rays, 1 << 30));
+    for (const auto& p : model_->decoder->parameters()) opts.grad_parameters.push_back(p);
+  }
+  return model_->RenderWith(planes, cameras, opts).rgb;
+}
+
+void StageOneTrainer::FinishStep(bool ok, StepResult& r, const Timer& timer) {
+  if (ok) {
+    AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
+               options_.beta1, options_.beta2, options_.eps);
+    if (!d_params_.empty())
+      AdamUpdate(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_, r.d_grad_norm, options_.grad_clip,
+                 options_.d_lr, options_.beta1, options_.beta2, options_.eps);
+    bad_in_a_row_ = 0;
+  } else {
+    r.skipped = true;
+    ++skipped_;
+    ++bad_in_a_row_;
+  }
+  ClearGrads(params_);
+  ClearGrads(d_params_);
+  ++step_;
+  r.seconds = timer.Seconds();
+}
+
 StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   if (options_.stage == 2) return StepStageTwo(batch);
   Timer timer;
@@ -388,7 +438,7 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
   AVATAR_CHECK_INPUT(batch.size() >= 1) << "training step on an empty batch";
   model_->train();
   const TrainBatch b = batch.To(device_);
-  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+  ClearGrads(params_);
   const std::map<std::string, torch::Tensor> terms = LossTerms(b, step_);
 
   const torch::Tensor total = SumTerms(terms, r.terms);
@@ -404,18 +454,7 @@ StepResult StageOneTrainer::Step(const TrainBatch& batch) {
     ok = ReduceOverRanks(*reducer_, ok, {&r.loss}, {{&r.terms, KeysOf(r.terms)}}, params_, r);
   }
   if (ok) ok = FiniteGradNorm(params_, device_, r.grad_norm, r.skip_reason, "non-finite gradient");
-  if (ok) {
-    AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
-               options_.beta1, options_.beta2, options_.eps);
-    bad_in_a_row_ = 0;
-  } else {
-    r.skipped = true;
-    ++skipped_;
-    ++bad_in_a_row_;
-  }
-  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
-  ++step_;
-  r.seconds = timer.Seconds();
+  FinishStep(ok, r, timer);
   return r;
 }
 
@@ -520,21 +559,7 @@ StepResult StageOneTrainer::StepStageTwo(const TrainBatch& batch) {
       if (!ok) r.skip_reason = std::isfinite(r.grad_norm) ? "non-finite discriminator gradient" : "non-finite gradient";
     }
   }
-  if (ok) {
-    AdamUpdate(params_, exp_avg_, exp_avg_sq_, param_steps_, r.grad_norm, options_.grad_clip, options_.lr,
-               options_.beta1, options_.beta2, options_.eps);
-    AdamUpdate(d_params_, d_exp_avg_, d_exp_avg_sq_, d_param_steps_, r.d_grad_norm, options_.grad_clip, options_.d_lr,
-               options_.beta1, options_.beta2, options_.eps);
-    bad_in_a_row_ = 0;
-  } else {
-    r.skipped = true;
-    ++skipped_;
-    ++bad_in_a_row_;
-  }
-  ClearGrads(params_);
-  ClearGrads(d_params_);
-  ++step_;
-  r.seconds = timer.Seconds();
+  FinishStep(ok, r, timer);
   return r;
 }
 
@@ -769,25 +794,10 @@ int64_t TruncateLog(const fs::path& log, int64_t first_step) {
 
 namespace {
 
-// The first `n` pairs of a batch.
+// The first `n` pairs of a batch (copies).
 TrainBatch FirstPairs(const TrainBatch& b, int64_t n) {
   n = std::min(n, b.size());
-  auto head = [n](const torch::Tensor& t) { return t.defined() ? t.narrow(0, 0, n).clone() : t; };
-  TrainBatch out;
-  out.source = head(b.source);
-  out.source_matte = head(b.source_matte);
-  out.source_eye_mouth = head(b.source_eye_mouth);
-  out.source_label = head(b.source_label);
-  out.target = head(b.target);
-  out.target_matte = head(b.target_matte);
-  out.target_label = head(b.target_label);
-  out.expression_image = head(b.expression_image);
-  out.neutral_image = head(b.neutral_image);
-  out.neutral_mask = head(b.neutral_mask);
-  out.target_expression = head(b.target_expression);
-  out.kind = head(b.kind);
-  out.identity = head(b.identity);
-  return out;
+  return b.Map([n](const torch::Tensor& t) { return t.narrow(0, 0, n).clone(); });
 }
 
 // [-1,1] renders -> CPU float in [0,1].

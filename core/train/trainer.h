@@ -19,7 +19,9 @@
 //
 // Training renders jitter their stratified and importance samples (RenderOptions::deterministic
 // = false, unless TrainerOptions::deterministic_render); evaluation renders (Evaluate) are
-// deterministic.
+// deterministic. Cheap steps (issue 12, off by default): with patch_size the target-camera
+// renders and their targets are random windows of the render grid, one per sample; with
+// grad_chunk_rays the renders with gradients are ray-chunked (same gradients, less memory).
 //
 // Curriculum (the paper's 750k stage-I steps: + expression at 120k = 16%, + appearance at
 // 240k = 32%): steps [0, expression_start) train I_c only, [expression_start, appearance_start)
@@ -78,9 +80,11 @@
 #include <torch/torch.h>
 
 #include "core/model/goha_model.h"
+#include "core/render/camera.h"
 #include "core/train/losses.h"
 #include "core/train/sample.h"
 #include "core/util/run_context.h"
+#include "core/util/timer.h"
 
 namespace avatar::train {
 
@@ -165,6 +169,19 @@ struct TrainerOptions {
   // tv_weight 0 a stage-I step then draws no random numbers, which makes data-parallel runs equal
   // to a single-process run at the global batch (core/train/distributed.h).
   bool deterministic_render = false;
+  // Stage I, cheap steps (issue 12). Patches: when 0 < patch_size < render size, each sample of a
+  // step renders only a random patch_size x patch_size window of its target-camera image (drawn
+  // per sample from the global CPU generator, so a resumed run draws the same windows; the same
+  // window for I_c, I_c+e and I_c+e+p), and their image losses compare it with the same window of
+  // the target resized to render size. The neutral render (source camera) stays whole, and so do
+  // Evaluate's renders. With the MobileNetV2 perceptual term the patch must be >= 32 pixels.
+  // 0 (or >= render size) = whole images.
+  int64_t patch_size = 0;
+  // Ray-chunked training renders (render::RenderOptions::grad_chunk_rays): rays per chunk of every
+  // stage-I render with gradients; the forward pass renders without gradients and the backward
+  // pass renders one chunk at a time again, so a render holds one chunk's activations, not the
+  // whole image's. Gradients equal the unchunked ones (to float rounding). 0 = off.
+  int64_t grad_chunk_rays = 0;
 
   template <typename V>
   void Visit(V&& v) {
@@ -191,6 +208,8 @@ struct TrainerOptions {
     v("d_lr", d_lr, "Stage II: discriminator learning rate");
     v("sr_random_noise", sr_random_noise, "Stage II: random SR noise maps while training");
     v("deterministic_render", deterministic_render, "Training renders without sample jitter");
+    v("patch_size", patch_size, "Stage I: render random patches of this side at the target camera (0 = whole images)");
+    v("grad_chunk_rays", grad_chunk_rays, "Stage I: rays per chunk of ray-chunked renders with gradients (0 = off)");
   }
   // Throws InvalidOptions.
   void Validate() const;
@@ -285,6 +304,14 @@ class StageOneTrainer {
     if (cancel_ != nullptr) cancel_->ThrowIfCancelled();
   }
   StepResult StepStageTwo(const TrainBatch& batch);
+  // The update or the skip that ends a step (ok: every loss and gradient finite), then the
+  // cleared gradients and the step count.
+  void FinishStep(bool ok, StepResult& r, const Timer& timer);
+  // A stage-I training render (with gradients, jittered unless deterministic_render) of `planes`
+  // at `cameras`, rgb: the pixel windows `corners` ([B,2], patch_size) when defined, ray-chunked
+  // when grad_chunk_rays > 0.
+  torch::Tensor TrainingRender(const torch::Tensor& planes, const render::Cameras& cameras,
+                               const torch::Tensor& corners = {});
   const RunContext* cancel_ = nullptr;
   TrainerOptions options_;
   torch::Device device_;

@@ -69,7 +69,7 @@ TEST(BenchTrain, TinyBatchOnePrintsATableWithPositiveTimesAndRatios) {
   // The default perceptual term (MobileNetV2, as training uses).
   const auto r = Studio("bench train --configs tiny --batches 1 --steps 2");
   if (r.exit_code == 1 && r.err.find("nsfwjs") != std::string::npos) {
-    GTEST_SKIP() << "MobileNetV2 (nsfwjs) weights not installed: " << r.err;
+    FAIL() << "MobileNetV2 (nsfwjs) weights not installed (run scripts/setup): " << r.err;
   }
   ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
   EXPECT_NE(r.out.find("| step / tiny b1 |"), std::string::npos) << r.out;

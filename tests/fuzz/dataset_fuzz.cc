@@ -9,6 +9,7 @@
 #include "core/train/dataset.h"
 #include "core/util/error.h"
 #include "fuzz_common.h"
+#include "tests/common/dataset_shard.h"
 
 namespace avatar::fuzz {
 namespace {
@@ -49,21 +50,9 @@ std::string RunDataset(std::string_view input) {
 // `pairs` pairs.
 std::string Shard(int64_t n, int64_t s, int64_t k, int64_t pairs, int64_t seed) {
   torch::manual_seed(seed);
-  auto u8 = [&](int64_t c) { return torch::randint(0, 256, {n, c, s, s}, torch::kUInt8); };
-  c10::Dict<std::string, torch::Tensor> d;
-  d.insert("image", u8(3));
-  d.insert("matte", u8(1));
-  d.insert("eye_mouth", u8(1));
-  d.insert("expression_image", u8(3));
-  d.insert("neutral_image", u8(3));
-  d.insert("neutral_mask", u8(1));
-  d.insert("label", torch::rand({n, 25}));
-  d.insert("expression", torch::rand({n, k}));
-  d.insert("identity", torch::arange(n, torch::kInt64).remainder(2));
-  d.insert("pairs", torch::randint(0, n, {pairs, 2}, torch::kInt64));
-  d.insert("pair_kind", torch::randint(0, 2, {pairs}, torch::kInt64));
-  const std::vector<char> bytes = torch::pickle_save(c10::IValue(d));
-  return std::string(bytes.begin(), bytes.end());
+  return testing::DatasetShardBytes(n, s, k, torch::arange(n, torch::kInt64).remainder(2), [&] {
+    return std::make_pair(torch::randint(0, n, {pairs, 2}, torch::kInt64), torch::randint(0, 2, {pairs}, torch::kInt64));
+  });
 }
 
 int DatasetSeeds(const std::filesystem::path& dir) {

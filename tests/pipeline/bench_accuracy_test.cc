@@ -12,9 +12,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "common/run_process.h"
 #include "common/temp_dir.h"
-#include "common/tiny_dataset.h"
+#include "common/tiny_checkpoint.h"
+#include "common/tiny_evaluation.h"
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/goha_model.h"
@@ -26,39 +26,27 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using testing::RunProcess;
 using testing::TempDir;
 
 class BenchAccuracy : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = new TempDir();
-    RunContext ctx;
-    report_ = BuildDataset(testing::TinyDatasetOptions(*dir_ / "ds", 2), testing::TinyDatasetPhotos(), {}, ctx);
-    torch::manual_seed(7);
-    GohaModel model(ModelConfig::Tiny());
     CheckpointInfo info;
     info.data_provenance = "random init (bench accuracy test)";
-    SaveModelCheckpoint(*dir_ / "tiny.ckpt", model, info);
+    inputs_ = testing::MakeTinyEvaluationInputs(7, {{"tiny.ckpt", info}});
   }
-  static void TearDownTestSuite() {
-    delete dir_;
-    dir_ = nullptr;
-  }
-  static testing::ProcessResult Studio(const std::string& args) {
-    return RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args, "env -u DISPLAY AVATAR_THREADS=2");
-  }
+  static void TearDownTestSuite() { inputs_.reset(); }
+  static testing::ProcessResult Studio(const std::string& args) { return testing::RunStudio(AVATAR_STUDIO_EXE, args); }
   static std::string Common() {
-    return "--checkpoint '" + (*dir_ / "tiny.ckpt").string() + "' --data '" + (*dir_ / "ds").string() + "' --threads 2";
+    return "--checkpoint '" + inputs_->Checkpoint("tiny.ckpt").string() + "' --data '" + inputs_->Data().string() +
+           "' --threads 2";
   }
-  static TempDir* dir_;
-  static DatasetBuildReport report_;
+  static std::unique_ptr<testing::TinyEvaluationInputs> inputs_;
 };
-TempDir* BenchAccuracy::dir_ = nullptr;
-DatasetBuildReport BenchAccuracy::report_;
+std::unique_ptr<testing::TinyEvaluationInputs> BenchAccuracy::inputs_;
 
 TEST_F(BenchAccuracy, OneRowPerPresetAndSweptStepWithFiniteMetricsAndAPlot) {
-  ASSERT_GE(report_.val_pairs, 2) << "the tiny dataset needs two validation portraits";
+  ASSERT_GE(inputs_->report.val_pairs, 2) << "the tiny dataset needs two validation portraits";
   TempDir out;
   const auto r = Studio("bench accuracy " + Common() + " --portraits 2 --refine-steps 0,3 --out '" +
                         out.path().string() + "'");
@@ -119,6 +107,24 @@ TEST_F(BenchAccuracy, OneRowPerPresetAndSweptStepWithFiniteMetricsAndAPlot) {
   cv::cvtColor(plot, grey, cv::COLOR_BGR2GRAY);
   EXPECT_GT(cv::countNonZero(grey < 128), 1000);
   for (const auto& name : out.List()) EXPECT_EQ(name.find(".tmp"), std::string::npos) << "temporary left: " << name;
+}
+
+TEST_F(BenchAccuracy, ExpressionBasesCheckpointIsMeasuredWithTheDatasetsCoefficients) {
+  // A network whose T_e comes from morphable coefficients: each portrait gives its shard's beta.
+  TempDir out;
+  testing::SaveTinyCheckpoint(out / "bases.ckpt", 9, {}, /*expression_bases=*/true);
+  const auto r = Studio("bench accuracy --checkpoint '" + (out / "bases.ckpt").string() + "' --data '" +
+                        inputs_->Data().string() + "' --threads 2 --portraits 1 --presets standard --refine-steps 0 " +
+                        "--no-face-metrics --out '" + (out / "report").string() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  const json j = json::parse(ReadFileBytes(out / "report" / "accuracy.json"));
+  ASSERT_EQ(j["rows"].size(), 2u);
+  for (const json& row : j["rows"]) {
+    for (const char* k : {"psnr", "ssim", "frame_seconds"}) {
+      ASSERT_TRUE(row[k].is_number()) << row["name"] << " " << k;
+      EXPECT_TRUE(std::isfinite(row[k].get<double>())) << row["name"] << " " << k;
+    }
+  }
 }
 
 TEST_F(BenchAccuracy, BadInputsNameTheProblem) {

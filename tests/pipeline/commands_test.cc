@@ -9,7 +9,7 @@
 #include "common/temp_dir.h"
 #include "core/io/image_io.h"
 #include "core/pipeline/session.h"
-#include "core/render/camera.h"
+#include "synthetic_expression_source.h"
 
 namespace avatar {
 namespace {
@@ -50,8 +50,7 @@ TEST(Commands, RenderWithAnotherOrNoModelSaysSo) {
   so.config = "tiny";
   Session session(so);
   SourceFit fit;
-  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-  for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
+  fit.camera = testing::FrontalCameraLabel();
   RunContext ctx;
   const Avatar avatar = session.ReconstructFromAnalysis(
       PortraitFromAlignedImage(cv::Mat(64, 64, CV_8UC3, cv::Scalar(90, 120, 160))), fit, ctx);

@@ -126,6 +126,64 @@ TEST_F(DatasetInspect, BadOptionsWriteNothingAndSyntheticWithoutPairsIsRefusedAf
   EXPECT_THROW(InspectDataset(missing, ctx), Error);
 }
 
+TEST_F(DatasetInspect, IdentityOptionPutsOnlyThatIdentitysPairsOnTheContactSheet) {
+  // Identity ids are positions in split.json's names; find a training identity with one pair.
+  const json names = Load("split.json").at("identities");
+  const train::TrainDataset train_set = train::TrainDataset::Open(Data().string(), "train");
+  std::string single;
+  for (size_t id = 0; id < names.size() && single.empty(); ++id) {
+    int64_t count = 0;
+    for (int64_t i = 0; i < train_set.size(); ++i) count += train_set.PairIdentity(i) == static_cast<int64_t>(id);
+    if (count == 1) single = names[id].get<std::string>();
+  }
+  ASSERT_FALSE(single.empty()) << "the tiny dataset has no training identity with exactly one pair";
+  ASSERT_GT(train_set.size(), 1) << "the check below needs more than one training pair";
+
+  TempDir out;
+  RunContext ctx;
+  auto sheet = [&](const std::string& identity, int64_t seed, const std::string& name) {
+    DatasetInspectOptions o;
+    o.dir = Data().string();
+    o.contact = (out / name).string();
+    o.histograms = (out / "hist.png").string();
+    o.pairs = 4;
+    o.seed = seed;
+    o.identity = identity;
+    InspectDataset(o, ctx);
+    return LoadImageBgr(o.contact);
+  };
+  // One identity with one pair: every row is that pair, whatever the seed.
+  const cv::Mat a = sheet(single, 1, "a.png"), b = sheet(single, 2, "b.png");
+  ASSERT_EQ(a.rows, 4 * 128);
+  EXPECT_EQ(cv::norm(a, b, cv::NORM_INF), 0.0);
+  for (int r = 1; r < 4; ++r)
+    EXPECT_EQ(cv::norm(a.rowRange(0, 128), a.rowRange(r * 128, (r + 1) * 128), cv::NORM_INF), 0.0) << r;
+  // Without the option, rows come from every pair: over a few seeds, some row differs.
+  double spread = 0.0;
+  for (int64_t seed = 1; seed <= 4; ++seed) {
+    const cv::Mat all = sheet("", seed, "all.png");
+    for (int r = 1; r < 4; ++r)
+      spread = std::max(spread, cv::norm(all.rowRange(0, 128), all.rowRange(r * 128, (r + 1) * 128), cv::NORM_INF));
+  }
+  EXPECT_GT(spread, 0.0);
+
+  // An unknown name and a validation identity are refused, naming the option.
+  DatasetInspectOptions o;
+  o.dir = Data().string();
+  o.contact = (out / "bad.png").string();
+  o.histograms = (out / "hist.png").string();
+  for (const std::string& bad : {std::string("nobody"), Load("split.json").at("val").at(0).get<std::string>()}) {
+    o.identity = bad;
+    try {
+      InspectDataset(o, ctx);
+      ADD_FAILURE() << "--identity " << bad << " was accepted";
+    } catch (const InvalidOptions& e) {
+      EXPECT_NE(std::string(e.what()).find("--identity"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_FALSE(fs::exists(out / "bad.png"));
+}
+
 TEST_F(DatasetInspect, CommandPrintsTheReport) {
   TempDir out;
   const std::string contact = (out / "c.png").string(), hist = (out / "h.png").string();

@@ -11,10 +11,11 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <torch/serialize.h>
 
-#include "common/run_process.h"
+#include "common/dataset_shard.h"
 #include "common/temp_dir.h"
-#include "common/tiny_dataset.h"
+#include "common/tiny_evaluation.h"
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/goha_model.h"
@@ -30,46 +31,32 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using testing::RunProcess;
 using testing::TempDir;
 
 // Shared inputs: one dataset and two tiny checkpoints (SR untrained / "trained") per process.
 class EvalTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = new TempDir();
-    RunContext ctx;
-    report_ = BuildDataset(testing::TinyDatasetOptions(*dir_ / "ds", 2), testing::TinyDatasetPhotos(), {}, ctx);
-
-    torch::manual_seed(3);
-    GohaModel model(ModelConfig::Tiny());
     CheckpointInfo info;
     info.data_provenance = "random init (eval test)";
-    SaveModelCheckpoint(*dir_ / "tiny.ckpt", model, info);
-    info.sr_trained = true;
-    SaveModelCheckpoint(*dir_ / "tiny_sr.ckpt", model, info);
+    CheckpointInfo sr_info = info;
+    sr_info.sr_trained = true;
+    inputs_ = testing::MakeTinyEvaluationInputs(3, {{"tiny.ckpt", info}, {"tiny_sr.ckpt", sr_info}});
   }
-  static void TearDownTestSuite() {
-    delete dir_;
-    dir_ = nullptr;
-  }
+  static void TearDownTestSuite() { inputs_.reset(); }
 
-  static fs::path Data() { return *dir_ / "ds"; }
-  static fs::path Checkpoint(bool sr = false) { return *dir_ / (sr ? "tiny_sr.ckpt" : "tiny.ckpt"); }
+  static fs::path Data() { return inputs_->Data(); }
+  static fs::path Checkpoint(bool sr = false) { return inputs_->Checkpoint(sr ? "tiny_sr.ckpt" : "tiny.ckpt"); }
   static json Load(const fs::path& p) { return json::parse(ReadFileBytes(p)); }
 
-  static TempDir* dir_;
-  static DatasetBuildReport report_;
+  static std::unique_ptr<testing::TinyEvaluationInputs> inputs_;
 };
-TempDir* EvalTest::dir_ = nullptr;
-DatasetBuildReport EvalTest::report_;
+std::unique_ptr<testing::TinyEvaluationInputs> EvalTest::inputs_;
 
-testing::ProcessResult Studio(const std::string& args) {
-  return RunProcess(std::string("'") + AVATAR_STUDIO_EXE + "' " + args, "env -u DISPLAY AVATAR_THREADS=2");
-}
+testing::ProcessResult Studio(const std::string& args) { return testing::RunStudio(AVATAR_STUDIO_EXE, args); }
 
 TEST_F(EvalTest, CommandWritesEveryRowWithFiniteMetricsTableAndContactSheet) {
-  ASSERT_GE(report_.val_pairs, 2) << "the tiny dataset needs two validation pairs";
+  ASSERT_GE(inputs_->report.val_pairs, 2) << "the tiny dataset needs two validation pairs";
   TempDir out;
   const auto r = Studio("eval --checkpoint '" + Checkpoint().string() + "' --data '" + Data().string() +
                         "' --split val --max-pairs 0 --out '" + out.path().string() + "' --threads 2");
@@ -77,7 +64,7 @@ TEST_F(EvalTest, CommandWritesEveryRowWithFiniteMetricsTableAndContactSheet) {
   EXPECT_NE(r.err.find("ETA"), std::string::npos) << "no progress line: " << r.err;
 
   const json j = Load(out / "eval.json");
-  EXPECT_EQ(j["pairs"].get<int>(), report_.val_pairs);
+  EXPECT_EQ(j["pairs"].get<int>(), inputs_->report.val_pairs);
   EXPECT_EQ(j["checkpoint"]["sr_trained"].get<bool>(), false);
   const std::string md = ReadFileBytes(out / "eval.md");
   ASSERT_EQ(j["rows"].size(), 6u);
@@ -104,7 +91,7 @@ TEST_F(EvalTest, CommandWritesEveryRowWithFiniteMetricsTableAndContactSheet) {
     }
     // Face metrics: every pair is counted; the targets are real faces.
     const json& f = row["face"];
-    EXPECT_EQ(f["pairs"].get<int>(), report_.val_pairs) << key;
+    EXPECT_EQ(f["pairs"].get<int>(), inputs_->report.val_pairs) << key;
     EXPECT_EQ(f["no_face_target"].get<int>(), 0) << key;
     EXPECT_EQ(f["valid"].get<int>() + f["no_face_render"].get<int>(), f["pairs"].get<int>()) << key;
     if (f["valid"].get<int>() > 0) {
@@ -114,7 +101,7 @@ TEST_F(EvalTest, CommandWritesEveryRowWithFiniteMetricsTableAndContactSheet) {
   EXPECT_NE(md.find("not trained"), std::string::npos) << md;
   // The morphable baseline of real faces is a face: CSIM is measured for it.
   EXPECT_GT(j["rows"][0]["face"]["valid"].get<int>(), 0) << md;
-  ASSERT_EQ(j["per_pair"].size(), static_cast<size_t>(report_.val_pairs));
+  ASSERT_EQ(j["per_pair"].size(), static_cast<size_t>(inputs_->report.val_pairs));
 
   const cv::Mat contact = cv::imread((out / "contact.png").string());
   ASSERT_FALSE(contact.empty());
@@ -248,23 +235,50 @@ TEST_F(EvalTest, CancelWritesNothing) {
   EXPECT_THROW(RunEvaluation(o, fresh), InvalidOptions);
 }
 
+// A val split of `photos` photo pairs and `clips` clip pairs (kinds interleaved as the builder
+// writes them: photos first, then clips), 8 px frames, written as dataset_build writes shards.
+fs::path ValSplitOf(const TempDir& dir, int64_t photos, int64_t clips) {
+  const int64_t n = photos + clips, s = 8;
+  const std::string bytes = testing::DatasetShardBytes(n, s, 4, torch::arange(n, torch::kInt64).remainder(3), [&] {
+    const torch::Tensor frames = torch::arange(n, torch::kInt64);
+    return std::make_pair(torch::stack({frames, frames}, 1),
+                          torch::cat({torch::zeros({photos}, torch::kInt64), torch::ones({clips}, torch::kInt64)}));
+  });
+  const fs::path root = dir / ("val_" + std::to_string(photos) + "_" + std::to_string(clips));
+  fs::create_directories(root / "shards");
+  WriteBytesAtomically(root / "shards" / "val.pt", bytes);
+  const nlohmann::json ds = {{"size", s},
+                             {"labels", nlohmann::json::array()},
+                             {"shards", {{"train", "shards/train.pt"}, {"val", "shards/val.pt"}}}};
+  WriteBytesAtomically(root / "dataset.json", ds.dump());
+  return root;
+}
+
 TEST(EvalPairs, EqualSharesPerKindEvenlySpaced) {
-  // ChooseEvaluationPairs on the real validation split when it is built (skipped otherwise).
-  const fs::path real = fs::path(AVATAR_BINARY_DIR) / "dataset-128";
-  if (!fs::exists(real / "shards" / "val.pt")) GTEST_SKIP() << "no built dataset at " << real;
-  const auto ds = train::TrainDataset::Open(real.string(), "val");
-  const auto chosen = ChooseEvaluationPairs(ds, 20);
-  ASSERT_EQ(chosen.size(), 20u);
-  const int64_t photos = ds.CountKind(train::PairKind::kPhoto);
-  int64_t photo_chosen = 0;
-  for (size_t i = 0; i < chosen.size(); ++i) {
-    if (i > 0) {
-      EXPECT_LT(chosen[i - 1], chosen[i]);
+  // ChooseEvaluationPairs: at most half of the chosen pairs per kind while both kinds have enough
+  // (all photos when there are fewer), increasing indices, every pair for max_pairs 0.
+  TempDir dir;
+  torch::manual_seed(3);
+  for (const auto& [photos, clips] : std::vector<std::pair<int64_t, int64_t>>{{21, 43}, {4, 60}, {30, 5}}) {
+    const auto ds = train::TrainDataset::Open(ValSplitOf(dir, photos, clips).string(), "val");
+    ASSERT_EQ(ds.CountKind(train::PairKind::kPhoto), photos);
+    const auto chosen = ChooseEvaluationPairs(ds, 20);
+    ASSERT_EQ(chosen.size(), 20u) << photos << " photos, " << clips << " clips";
+    int64_t photo_chosen = 0;
+    for (size_t i = 0; i < chosen.size(); ++i) {
+      if (i > 0) EXPECT_LT(chosen[i - 1], chosen[i]);
+      if (ds.Get(chosen[i]).kind == train::PairKind::kPhoto) ++photo_chosen;
     }
-    if (ds.Get(chosen[i]).kind == train::PairKind::kPhoto) ++photo_chosen;
+    // Equal shares (10 + 10) when both kinds have 10; otherwise the scarce kind gives all it has.
+    const int64_t expected = clips >= 10 ? std::min<int64_t>(photos, 10) : 20 - clips;
+    EXPECT_EQ(photo_chosen, expected) << photos << " photos, " << clips << " clips";
+    // Evenly spaced within a kind: the chosen photos reach into the second half of the photos.
+    int64_t last_photo = -1;
+    for (int64_t i : chosen)
+      if (i < photos) last_photo = std::max(last_photo, i);
+    EXPECT_GE(last_photo, photos / 2) << photos << " photos, " << clips << " clips";
+    EXPECT_EQ(ChooseEvaluationPairs(ds, 0).size(), static_cast<size_t>(ds.size()));
   }
-  EXPECT_EQ(photo_chosen, std::min<int64_t>(photos, 10));
-  EXPECT_EQ(ChooseEvaluationPairs(ds, 0).size(), static_cast<size_t>(ds.size()));
 }
 
 }  // namespace

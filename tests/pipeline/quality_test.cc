@@ -14,11 +14,11 @@
 #include <nlohmann/json.hpp>
 
 #include "common/temp_dir.h"
+#include "common/tiny_checkpoint.h"
 #include "core/io/atomic_file.h"
 #include "core/model/model_config.h"
 #include "core/pipeline/quality.h"
 #include "core/pipeline/session.h"
-#include "core/render/camera.h"
 #include "core/util/error.h"
 #include "synthetic_expression_source.h"
 
@@ -61,13 +61,6 @@ QualityEstimates Sample(const std::string& model_id, int threads) {
 void WriteText(const fs::path& path, const std::string& text) {
   std::ofstream f(path, std::ios::binary);
   f << text;
-}
-
-std::array<float, 25> FrontalLabel() {
-  std::array<float, 25> label{};
-  const torch::Tensor t = render::LabelsFromCameras(render::FrontalCameras(1)).reshape({25}).contiguous();
-  std::copy(t.data_ptr<float>(), t.data_ptr<float>() + 25, label.begin());
-  return label;
 }
 
 TEST(QualityLadder, EveryPresetValidatesAndNamesAreUnique) {
@@ -286,13 +279,7 @@ TEST(QualityCache, CorruptOrForeignContentIsNeverTrusted) {
   EXPECT_THROW(WriteCachedQualityEstimates(cache, partial), InvalidInput);
 }
 
-SessionOptions Tiny() {
-  SessionOptions o;
-  o.random_weights = true;
-  o.config = "tiny";
-  o.seed = 5;
-  return o;
-}
+SessionOptions Tiny() { return testing::TinySessionOptions(5); }
 
 RefineOptions FastRefine() {
   RefineOptions o;
@@ -330,6 +317,21 @@ TEST(QualityMeasure, TinyModelGivesFinitePositiveTimesAndCachesThem) {
   EXPECT_EQ(again.Find("fine")->frame_seconds, e.Find("fine")->frame_seconds);
 }
 
+TEST(QualityMeasure, ExpressionBasesModelIsMeasuredFromCoefficients) {
+  // A network whose T_e comes from morphable coefficients: the probe gives the zero expression's.
+  TempDir dir;
+  testing::SaveTinyCheckpoint(dir / "bases.ckpt", 5, {}, /*expression_bases=*/true);
+  SessionOptions o;
+  o.checkpoint = (dir / "bases.ckpt").string();
+  const Session session(o);
+  RunContext ctx;
+  const QualityEstimates e = MeasureQualityEstimates(session, FastRefine(), ctx);
+  EXPECT_TRUE(e.Complete());
+  for (const auto& p : e.presets) EXPECT_TRUE(std::isfinite(p.frame_seconds) && p.frame_seconds > 0) << p.preset;
+  EXPECT_GT(session.Counters().expression_encoder, 0);
+  EXPECT_EQ(session.Counters().expression_images, 0);  // no I_exp for this network
+}
+
 TEST(QualityMeasure, CancelStopsTheMeasurement) {
   const Session session(Tiny());
   RunContext ctx;
@@ -341,7 +343,7 @@ TEST(QualityRender, SessionRendersEachPresetsSettings) {
   const Session session(Tiny());
   const ModelInfo info = session.Info();
   SourceFit fit;
-  fit.camera = FrontalLabel();
+  fit.camera = avatar::testing::FrontalCameraLabel();
   fit.expressions = std::make_shared<avatar::testing::SyntheticExpressionSource>();
   cv::Mat img(512, 512, CV_8UC3, cv::Scalar(90, 120, 200));
   RunContext ctx;

@@ -18,25 +18,16 @@
 #include "core/pipeline/refine.h"
 #include "core/pipeline/session.h"
 #include "core/pipeline/session_access.h"
-#include "core/render/camera.h"
 #include "core/util/error.h"
 #include "synthetic_expression_source.h"
 
 namespace avatar {
 namespace {
 
-using avatar::testing::SyntheticExpressionSource;
+using avatar::testing::FrontalFit;
 using avatar::testing::TempDir;
 
-const bool kLoaderRegistered = RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
-
-SessionOptions TinyOptions() {
-  SessionOptions o;
-  o.random_weights = true;
-  o.config = "tiny";
-  o.seed = 3;
-  return o;
-}
+SessionOptions TinyOptions() { return testing::TinySessionOptions(3); }
 
 // A portrait with structure the one-shot random network cannot reproduce.
 face::AlignedPortrait Portrait() {
@@ -55,14 +46,6 @@ face::AlignedPortrait Portrait() {
   cv::multiply(f, m3, f);
   f.convertTo(p.image, CV_8UC3);
   return p;
-}
-
-SourceFit FrontalFit() {
-  SourceFit fit;
-  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-  for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
-  fit.expressions = std::make_shared<SyntheticExpressionSource>();
-  return fit;
 }
 
 RefineTarget Target(const face::AlignedPortrait& p) {
@@ -96,7 +79,7 @@ bool SamePlanes(const Avatar& a, const Avatar& b) {
 class Refine : public ::testing::Test {
  protected:
   void SetUp() override {
-    ASSERT_TRUE(kLoaderRegistered);
+    ASSERT_TRUE(testing::kSyntheticSourceLoaderRegistered);
     session_ = std::make_unique<Session>(TinyOptions());
     portrait_ = Portrait();
     RunContext ctx;
@@ -140,7 +123,7 @@ TEST_F(Refine, PerceptualTermRuns) {
   try {
     r = RefineAvatar(*session_, avatar_, target_, o, ctx);
   } catch (const ModelLoad& e) {
-    GTEST_SKIP() << "MobileNetV2 (nsfwjs) weights not installed: " << e.what();
+    FAIL() << "MobileNetV2 (nsfwjs) weights not installed (run scripts/setup): " << e.what();
   }
   EXPECT_EQ(r.steps, 5);
   EXPECT_LE(r.loss_after, r.loss_before);
@@ -187,9 +170,9 @@ TEST_F(Refine, CancelFromAnotherThreadIsPrompt) {
 
 // The bundled model (config cpu, the default): cancellation inside its longer steps.
 TEST(RefineBundled, CancelLatencyOfTheDefaultModel) {
-  ASSERT_TRUE(kLoaderRegistered);
+  ASSERT_TRUE(testing::kSyntheticSourceLoaderRegistered);
   const auto checkpoint = ResourcePath(kBundledModelFile);
-  if (!std::filesystem::exists(checkpoint)) GTEST_SKIP() << "bundled model not found: " << checkpoint;
+  if (!std::filesystem::exists(checkpoint)) FAIL() << "bundled model not found (it is part of the repository): " << checkpoint;
   SessionOptions so;
   so.checkpoint = checkpoint.string();
   Session session(so);
@@ -212,7 +195,7 @@ TEST(RefineBundled, CancelLatencyOfTheDefaultModel) {
     threw = true;
   } catch (const ModelLoad& e) {
     canceller.join();
-    GTEST_SKIP() << "MobileNetV2 (nsfwjs) weights not installed: " << e.what();
+    FAIL() << "MobileNetV2 (nsfwjs) weights not installed (run scripts/setup): " << e.what();
   }
   const auto stopped = std::chrono::steady_clock::now();
   canceller.join();

@@ -5,34 +5,29 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <thread>
 
 #include <opencv2/imgproc.hpp>
 
 #include "common/temp_dir.h"
+#include "common/tiny_checkpoint.h"
 #include "core/io/atomic_file.h"
 #include "core/model/goha_model.h"
 #include "core/pipeline/session.h"
-#include "core/render/camera.h"
+#include "core/pipeline/session_access.h"
 #include "core/util/error.h"
 #include "synthetic_expression_source.h"
 
 namespace avatar {
 namespace {
 
+using avatar::testing::FrontalFit;
 using avatar::testing::SyntheticExpressionSource;
 using avatar::testing::TempDir;
 
-const bool kLoaderRegistered = RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
-
-SessionOptions TinyOptions(int seed = 0) {
-  SessionOptions o;
-  o.random_weights = true;
-  o.config = "tiny";
-  o.seed = seed;
-  return o;
-}
+SessionOptions TinyOptions(int seed = 0) { return testing::TinySessionOptions(seed); }
 
 cv::Mat SyntheticPortrait(int size = 512) {
   cv::Mat img = cv::Mat::zeros(size, size, CV_8UC3);
@@ -42,22 +37,14 @@ cv::Mat SyntheticPortrait(int size = 512) {
   return img;
 }
 
-SourceFit FrontalFit() {
-  SourceFit fit;
-  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-  for (int i = 0; i < 25; ++i) fit.camera[i] = label[i].item<float>();
-  fit.expressions = std::make_shared<SyntheticExpressionSource>();
-  return fit;
-}
-
-Avatar MakeAvatar(const Session& session) {
+Avatar MakeAvatar(const Session& session, const SourceFit& fit = FrontalFit()) {
   RunContext ctx;
   face::AlignedPortrait portrait = PortraitFromAlignedImage(SyntheticPortrait());
   portrait.eye_mouth_mask = cv::Mat::zeros(512, 512, CV_8UC1);
   cv::rectangle(portrait.eye_mouth_mask, cv::Rect(180, 180, 150, 40), cv::Scalar(255), cv::FILLED);
   portrait.matte = cv::Mat::zeros(512, 512, CV_32FC1);
   cv::circle(portrait.matte, cv::Point(256, 256), 200, cv::Scalar(1.0f), cv::FILLED);
-  return session.ReconstructFromAnalysis(portrait, FrontalFit(), ctx);
+  return session.ReconstructFromAnalysis(portrait, fit, ctx);
 }
 
 bool SameMat(const cv::Mat& a, const cv::Mat& b) {
@@ -65,7 +52,7 @@ bool SameMat(const cv::Mat& a, const cv::Mat& b) {
 }
 
 TEST(Session, CachingRunsOnlyWhatChanged) {
-  ASSERT_TRUE(kLoaderRegistered);
+  ASSERT_TRUE(testing::kSyntheticSourceLoaderRegistered);
   Session session(TinyOptions());
   const Avatar avatar = MakeAvatar(session);
   SessionCounters c = session.Counters();
@@ -189,11 +176,9 @@ TEST(Session, AvatarFilesFromOtherModelsOrDamagedAreRejected) {
 
 TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   TempDir dir;
-  torch::manual_seed(7);
-  GohaModel model(ModelConfig::Tiny());
   CheckpointInfo info;
   info.sr_trained = true;  // random weights run their (random) SR too
-  SaveModelCheckpoint(dir.path() / "m.ckpt", model, info);
+  testing::SaveTinyCheckpoint(dir / "m.ckpt", 7, info);
   SessionOptions from_file;
   from_file.checkpoint = (dir.path() / "m.ckpt").string();
   Session a(from_file);
@@ -208,11 +193,85 @@ TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   EXPECT_TRUE(SameMat(fa.bgr, fb.bgr));
 }
 
+// The synthetic I_exp with morphable coefficients as well: `count` of them, jawOpen and smile the
+// first two, Expression::coefficients added on top (what a network with expression bases reads).
+class SyntheticCoefficientSource : public SyntheticExpressionSource {
+ public:
+  explicit SyntheticCoefficientSource(int count) : count_(count) {}
+  int CoefficientCount() const override { return count_; }
+  std::vector<float> Coefficients(const Expression& expression) const override {
+    std::vector<float> beta(count_, 0.0f);
+    beta[0] = expression.Get("jawOpen");
+    beta[1] = expression.Get("smile");
+    if (!expression.coefficients.empty()) {
+      if (static_cast<int>(expression.coefficients.size()) != count_) throw InvalidInput("wrong coefficient count");
+      for (int k = 0; k < count_; ++k) beta[k] += expression.coefficients[k];
+    }
+    return beta;
+  }
+
+ private:
+  int count_;
+};
+
+double MeanAbsDiff(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat diff;
+  cv::absdiff(a, b, diff);
+  const cv::Scalar m = cv::mean(diff);
+  return (m[0] + m[1] + m[2]) / 3.0;
+}
+
+TEST(Session, ExpressionBasesModelMixesTeFromTheExpressionCoefficients) {
+  TempDir dir;
+  GohaModel model = testing::SaveTinyCheckpoint(dir / "bases.ckpt", 11, {}, /*expression_bases=*/true);
+  const ModelConfig& config = model->config();
+  SessionOptions o;
+  o.checkpoint = (dir / "bases.ckpt").string();
+  Session session(o);
+  const int k = config.expression_coefficients;
+  const Avatar avatar = MakeAvatar(session, FrontalFit(std::make_shared<SyntheticCoefficientSource>(k)));
+
+  session.ResetCounters();
+  Expression raw;  // driver-style raw coefficients
+  raw.coefficients.assign(k, 0.0f);
+  raw.coefficients[2] = 1.5f;
+  const Frame neutral = session.Animate(avatar, {}, ViewPose{}, Preset::kStandard);
+  const Frame jaw = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, Preset::kStandard);
+  const Frame driven = session.Animate(avatar, raw, ViewPose{15}, Preset::kStandard);
+  const SessionCounters c = session.Counters();
+  EXPECT_EQ(c.expression_images, 0);   // no I_exp: T_e comes from the coefficients
+  EXPECT_EQ(c.expression_encoder, 3);  // one mix of the bases per new expression
+  for (const Frame* f : {&neutral, &jaw, &driven}) {
+    ASSERT_EQ(f->bgr.rows, config.render_size);
+    EXPECT_TRUE(cv::checkRange(f->opacity));
+    EXPECT_TRUE(cv::checkRange(f->depth));
+  }
+  const double jaw_change = MeanAbsDiff(neutral.bgr, jaw.bgr);
+  const Frame driven_front = session.Animate(avatar, raw, ViewPose{}, Preset::kStandard);
+  const double driven_change = MeanAbsDiff(neutral.bgr, driven_front.bgr);
+  std::printf(
+      "bases model: mean |frame difference| neutral vs jawOpen=1 %.2f, vs raw coefficient 2 = 1.5 %.2f "
+      "(8-bit levels)\n",
+      jaw_change, driven_change);
+  EXPECT_GT(jaw_change, 0.5);
+  EXPECT_GT(driven_change, 0.5);
+  EXPECT_TRUE(SameMat(jaw.bgr, session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, Preset::kStandard).bgr));
+  EXPECT_EQ(session.Counters().expression_encoder, 3);  // repeated expressions are cached
+
+  // T_e of jawOpen = 1 is beta = (1, 0, ...) over std 1: the first basis itself.
+  const torch::Tensor te = SessionAccess::ExpressionPlanes(session, avatar, {{{"jawOpen", 1.0f}}});
+  ASSERT_TRUE(te.defined());
+  EXPECT_TRUE(torch::allclose(te[0], model->expression_bases[0].detach(), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::isfinite(te).all().item<bool>());
+
+  // An avatar whose expression source has no coefficients cannot drive such a network.
+  const Avatar plain = MakeAvatar(session);
+  EXPECT_THROW(session.Animate(plain, {}, ViewPose{}, Preset::kPreview), InvalidInput);
+}
+
 TEST(Session, StageOneWeightsUpsampleInsteadOfRunningTheUntrainedSr) {
   TempDir dir;
-  torch::manual_seed(7);
-  GohaModel model(ModelConfig::Tiny());
-  SaveModelCheckpoint(dir.path() / "m.ckpt", model, {});  // sr_trained = false (stage I)
+  testing::SaveTinyCheckpoint(dir / "m.ckpt", 7);  // sr_trained = false (stage I)
   SessionOptions o;
   o.checkpoint = (dir.path() / "m.ckpt").string();
   Session session(o);
@@ -388,9 +447,7 @@ TEST(Session, AnimateAtACameraLabel) {
   Session session(TinyOptions());
   const Avatar avatar = MakeAvatar(session);
   // The orbit view and the same camera as a label are one render.
-  std::array<float, 25> front{};
-  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
-  for (int i = 0; i < 25; ++i) front[i] = label[i].item<float>();
+  const std::array<float, 25> front = testing::FrontalCameraLabel();
   const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{}, Preset::kStandard);
   const Frame b = session.Animate(avatar, {{{"smile", 0.5f}}}, front, Preset::kStandard);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));

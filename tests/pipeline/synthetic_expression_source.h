@@ -1,7 +1,11 @@
 #pragma once
 // A synthetic I_exp renderer for pipeline tests: a grey face disk whose mouth opens with
-// jawOpen and curves with smile. It stands in for the morphable model's frontal render.
+// jawOpen and curves with smile. It stands in for the morphable model's frontal render (its
+// loader is registered in every test that includes this header, so avatar files with it load).
+// Also what the session tests reconstruct with: the tiny random-weight session, the frontal
+// camera label and the frontal SourceFit.
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -9,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/pipeline/session.h"
+#include "core/render/camera.h"
 #include "core/util/error.h"
 
 namespace avatar::testing {
@@ -45,5 +50,34 @@ class SyntheticExpressionSource : public ExpressionImageSource {
  private:
   int shade_;
 };
+
+inline const bool kSyntheticSourceLoaderRegistered =
+    RegisterExpressionSourceLoader("test-synthetic", &SyntheticExpressionSource::Load);
+
+// The tiny network with random weights drawn with `seed`.
+inline SessionOptions TinySessionOptions(int seed) {
+  SessionOptions o;
+  o.random_weights = true;
+  o.config = "tiny";
+  o.seed = seed;
+  return o;
+}
+
+// The frontal camera C_front (default intrinsics) as an EG3D label.
+inline std::array<float, 25> FrontalCameraLabel() {
+  const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1))[0];
+  std::array<float, 25> out{};
+  for (int i = 0; i < 25; ++i) out[i] = label[i].item<float>();
+  return out;
+}
+
+// A source fit at C_front whose I_exp comes from `expressions` (by default the synthetic source).
+inline SourceFit FrontalFit(
+    std::shared_ptr<const ExpressionImageSource> expressions = std::make_shared<SyntheticExpressionSource>()) {
+  SourceFit fit;
+  fit.camera = FrontalCameraLabel();
+  fit.expressions = std::move(expressions);
+  return fit;
+}
 
 }  // namespace avatar::testing

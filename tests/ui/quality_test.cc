@@ -3,8 +3,8 @@
 // portrait runs the refinement on the job worker (its progress reaches the window), measures the
 // ladder once (every entry then shows its estimates, cached for the next window) and shows a
 // refined avatar; a `best` reconstruction can be cancelled during its refinement and leaves the
-// previous avatar in place. With AVATAR_TEST_SAVE_SHOTS=DIR it saves the ladder with its
-// estimates as DIR/studio-quality-ladder.png.
+// previous avatar in place. (The screenshot of the ladder with the bundled model's estimates is
+// taken by studio_test.)
 // LibTorch (via the morphable model and the checkpoint writer) first: Qt's `slots` macro breaks its headers.
 #include "common/synthetic_studio.h"
 #include "core/model/checkpoint.h"
@@ -141,15 +141,6 @@ class QualityTest : public QObject {
     QVERIFY(fine != nullptr);
     QVERIFY(ladder->itemText(ladder->findData(QStringLiteral("fine"))).contains(QString::fromStdString(FormatQualityEstimate(fine))));
 
-    if (qEnvironmentVariableIsSet("AVATAR_TEST_SAVE_SHOTS")) {
-      ladder->showPopup();
-      QTest::qWait(300);
-      // The whole screen: the popup list is a window of its own.
-      const QImage shot = w->screen()->grabWindow(0).toImage();
-      const QRect area = QRect(w->geometry().topLeft(), QSize(760, 560)).intersected(shot.rect());
-      QVERIFY(shot.copy(area).save(qEnvironmentVariable("AVATAR_TEST_SAVE_SHOTS") + "/studio-quality-ladder.png"));
-      ladder->hidePopup();
-    }
 
     // A new window reads the cached estimates without measuring.
     auto again = Window(checkpoint_);

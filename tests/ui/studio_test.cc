@@ -160,6 +160,24 @@ class StudioTest : public QObject {
     QVERIFY2(w.viewport()->label().contains(QStringLiteral("Neural avatar: bundled neural model")),
              qPrintable(w.viewport()->label()));
     Shot(&w, QStringLiteral("studio-neural"));
+    if (qEnvironmentVariableIsSet("AVATAR_TEST_SAVE_SHOTS")) {
+      // The quality ladder with this machine's estimates for the bundled model (measured at first
+      // use or read from the cache), its popup open: the list is a window of its own, so the
+      // screen is grabbed.
+      if (!w.qualityEstimates().has_value() || !w.qualityEstimates()->Complete()) {
+        QSignalSpy estimated(&w, &MainWindow::qualityEstimatesChanged);
+        QVERIFY(estimated.wait(180000));
+      }
+      QVERIFY(w.qualityEstimates()->Complete());
+      auto* ladder = w.findChild<QComboBox*>(QStringLiteral("qualityLadder"));
+      QVERIFY(ladder != nullptr);
+      ladder->showPopup();
+      QTest::qWait(300);
+      const QImage screen = w.screen()->grabWindow(0).toImage();
+      const QRect area = QRect(w.geometry().topLeft(), QSize(760, 560)).intersected(screen.rect());
+      QVERIFY(screen.copy(area).save(qEnvironmentVariable("AVATAR_TEST_SAVE_SHOTS") + "/studio-quality-ladder.png"));
+      ladder->hidePopup();
+    }
     {
       // The rendered head is a real frame: not blank, and its opacity covers part of the image only.
       const QImage frame = w.lastFrame().convertToFormat(QImage::Format_RGB888);
