@@ -19,6 +19,7 @@
 // (--init-weights) from such files keeps them without repeating the flag.
 
 #include <csignal>
+#include <filesystem>
 #include <iostream>
 
 #include "app/commands.h"
@@ -54,6 +55,15 @@ int RunTrainImpl(TrainCommandOptions o, RunContext& ctx) {
   TrainingRunResult result;
   try {
     result = RunTrainingRun(o.run, ctx, [](const std::string& text) { std::cerr << text; });
+  } catch (const Cancelled&) {
+    std::signal(SIGTERM, previous);
+    // The trainer wrote both before it gave up: say where, and how to go on.
+    const std::filesystem::path run_dir = o.run.out;
+    if (o.run.dist.rank == 0 && std::filesystem::exists(run_dir / "model.ckpt") &&
+        std::filesystem::exists(run_dir / "state.ckpt"))
+      std::cerr << "train: cancelled; weights of the last finished step: " << (run_dir / "model.ckpt").string()
+              << ", state: " << (run_dir / "state.ckpt").string() << " (continue with --resume)\n";
+    throw;
   } catch (...) {
     std::signal(SIGTERM, previous);
     throw;

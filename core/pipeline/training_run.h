@@ -137,7 +137,7 @@ struct TrainingRunResult {
 // preset nor a file, or a bad config file); Io / InvalidInput naming the dataset (missing,
 // corrupt, image size or expression coefficients that do not fit the model); ModelLoad (state,
 // --init-weights); MissingData (pretrained backbones, perceptual network); Cancelled (during the
-// steps, after the state is written).
+// steps, after the state and the weights of the last applied step are written).
 TrainingRunResult RunTrainingRun(TrainingRunOptions options, RunContext& ctx, const TrainingNotes& notes = {});
 
 }  // namespace avatar

@@ -869,6 +869,11 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
     last_sampled = trainer.step();
     options.on_samples(trainer.step(), ForDisplay(trainer.Evaluate(sample_batch)));
   };
+  auto export_weights = [&] {
+    if (!lead) return;
+    trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
+    trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);
+  };
   double mean_step = 0.0;
   int64_t timed = 0;
   result.stopped_by = "steps";
@@ -963,17 +968,17 @@ RunResult RunTraining(StageOneTrainer& trainer, BatchSource& source, const RunOp
       }
     }
   } catch (const Cancelled&) {
+    // A cancelled run keeps its work twice: the state to resume from and usable weights of the
+    // last applied step (hours of training should not need a resume only to get a model).
     if (progress) progress_line.Finish();
     save();
+    export_weights();
     throw;
   }
   if (progress) progress_line.Finish();
   sample();
   save();
-  if (lead) {
-    trainer.ExportWeights(options.out_dir / "model.ckpt", options.data_provenance);
-    trainer.ExportWeights(options.out_dir / "model-fp16.ckpt", options.data_provenance, /*half_precision=*/true);
-  }
+  export_weights();
   result.last_step = trainer.step();
   result.skipped = trainer.skipped_steps();
   return result;

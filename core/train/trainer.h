@@ -334,7 +334,7 @@ class StageOneTrainer {
 };
 
 // A whole run in a folder RUN: RUN/state.ckpt (training state), RUN/model.ckpt and
-// RUN/model-fp16.ckpt (weights at the end), RUN/train.jsonl (one JSON object per step: losses,
+// RUN/model-fp16.ckpt (weights at the end, also after a cancel), RUN/train.jsonl (one JSON object per step: losses,
 // lr, step_s, samples_per_s, ...; stage II adds d_loss, d_terms, d_grad_norm), and a one-line
 // progress display with ETA on stderr. Every step appears once in the log: at the start, lines
 // whose step is >= the run's first step (logged after the state being resumed was written, or

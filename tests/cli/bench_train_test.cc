@@ -155,13 +155,21 @@ TEST(BenchTrain, HelpListsTheOptionsAndBenchListsTheSubject) {
 }
 
 TEST(BenchTrain, InterruptCancelsCleanly) {
-  // SIGINT after 3 s, in the middle of 100 timed steps: exit 130, no table rows for the
-  // unfinished case and no JSON file.
+  // SIGINT in the middle of 100 timed steps: exit 130, no table rows for the unfinished case and
+  // no JSON file. The signal is sent once the table header is out (the steps are running), not
+  // after a fixed time: on a loaded machine a fixed 3 s could land before the handler exists.
   TempDir dir;
   const std::string json_path = (dir / "bench.json").string();
-  const auto r = Studio("bench train --configs tiny --batches 1 --steps 100 --warmup 0 --perceptual pyramid --json '" +
-                            json_path + "'",
-                        "timeout --preserve-status -s INT 3");
+  const std::string out_path = (dir / "stdout").string();
+  const std::string script =
+      "\"$1\" bench train --configs tiny --batches 1 --steps 100 --warmup 0 --perceptual pyramid --json \"$2\" "
+      ">\"$3\" & p=$!; i=0; "
+      "until grep -q \"^| config\" \"$3\" || [ $i -ge 3000 ]; do sleep 0.1; i=$((i+1)); done; "
+      "kill -INT $p; wait $p; rc=$?; cat \"$3\"; exit $rc";
+  const auto r = avatar::testing::RunProcess("sh -c '" + script + "' sh '" + std::string(AVATAR_STUDIO_EXE) + "' '" +
+                                                 json_path + "' '" + out_path + "'",
+                                             "env -u DISPLAY -u WAYLAND_DISPLAY -u QT_QPA_PLATFORM");
+  EXPECT_NE(r.out.find("| config |"), std::string::npos) << "the steps never started\n" << r.out << r.err;
   EXPECT_EQ(r.exit_code, 130) << r.err << r.out;
   EXPECT_NE(r.err.find("cancelled"), std::string::npos) << r.err;
   EXPECT_TRUE(Row(r.out, "tiny", 1).empty()) << r.out;

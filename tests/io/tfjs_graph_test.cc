@@ -3,6 +3,7 @@
 #include "core/io/tfjs_graph.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <fstream>
 #include <iostream>
 
@@ -98,9 +99,10 @@ INSTANTIATE_TEST_SUITE_P(Models, TfjsGolden,
 std::string B64(const std::string& s) {
   static const char* k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;
-  int val = 0, bits = -6;
+  uint32_t val = 0;  // only the low 16 bits are ever read: unsigned, so the shifts cannot overflow
+  int bits = -6;
   for (unsigned char c : s) {
-    val = (val << 8) + c;
+    val = ((val << 8) | c) & 0xFFFFFFu;
     bits += 8;
     while (bits >= 0) {
       out.push_back(k[(val >> bits) & 0x3F]);

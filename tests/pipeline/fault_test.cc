@@ -279,7 +279,7 @@ TEST(Fault, KillDuringDatasetBuildAndTrainingKeepsCompleteFiles) {
     const std::string name = e.path().filename().string();
     if (!e.is_regular_file() || name[0] == '.') continue;
     if (e.path().extension() == ".json") {
-      EXPECT_NO_THROW((void)nlohmann::json::parse(Slurp(e.path()))) << e.path();
+      EXPECT_TRUE(nlohmann::json::accept(Slurp(e.path()))) << e.path();
     } else if (e.path().extension() == ".png") {
       EXPECT_NO_THROW(LoadImageBgr(e.path())) << e.path();
     }
@@ -334,6 +334,25 @@ TEST(Fault, KillDuringDatasetBuildAndTrainingKeepsCompleteFiles) {
       EXPECT_TRUE(IsWorkFileOf(name, "state", pid) || IsWorkFileOf(name, "train", pid)) << name;
       std::cout << "kill -9 during training (round " << round << ") left: " << name << "\n";
     }
+  }
+  // SIGTERM (stops the run as Ctrl+C does): exit 130, the state and the weights of the last
+  // finished step are written, and the message says where they are.
+  {
+    fs::remove(run / "model.ckpt");
+    const fs::path log = logs / "train-sigterm.log";
+    const pid_t pid = Spawn(train("100000", true), log);
+    const auto state = run / "state.ckpt";
+    const auto seen = fs::last_write_time(state);
+    ASSERT_TRUE(WaitUntil([&] { return fs::last_write_time(state) != seen; }, pid, 600)) << Slurp(log);
+    ASSERT_EQ(::kill(pid, SIGTERM), 0);
+    ASSERT_EQ(Wait(pid), 130) << Slurp(log);
+    const std::string err = Slurp(log);
+    EXPECT_NE(err.find("train: cancelled; weights of the last finished step: " + (run / "model.ckpt").string()),
+              std::string::npos)
+        << err;
+    EXPECT_NE(err.find("continue with --resume"), std::string::npos) << err;
+    EXPECT_GT(LoadModelCheckpoint(run / "model.ckpt").info.step, 0);
+    for (const auto& name : Names(run)) EXPECT_NE(name[0], '.') << "left after SIGTERM: " << name;
   }
   // The state the last kill left loads: resuming to a step already reached ends at once and
   // exports the weights, which load as a model checkpoint.

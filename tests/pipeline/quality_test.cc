@@ -116,8 +116,12 @@ TEST(QualityLadder, OrderedFromInstantToBestForEveryConfig) {
     const QualityPreset& instant = QualityPresetByName("instant");
     const QualityPreset& best = QualityPresetByName("best");
     for (const auto& p : ladder) {
-      if (p.name != "instant") EXPECT_LT(instant.FrameCost(info), p.FrameCost(info)) << config << " " << p.name;
-      if (p.name != "best") EXPECT_LT(p.refine_steps, best.refine_steps) << config << " " << p.name;
+      if (p.name != "instant") {
+        EXPECT_LT(instant.FrameCost(info), p.FrameCost(info)) << config << " " << p.name;
+      }
+      if (p.name != "best") {
+        EXPECT_LT(p.refine_steps, best.refine_steps) << config << " " << p.name;
+      }
     }
     EXPECT_EQ(instant.refine_steps, 0);
     EXPECT_FALSE(instant.super_resolution);

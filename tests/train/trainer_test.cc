@@ -276,6 +276,14 @@ TEST(Trainer, CancelWritesTheStateAndResumeFinishes) {
     EXPECT_THROW(RunTraining(trainer, source, run, ctx), Cancelled);
     // The cancel came with the third batch: its step stops at the first check and is not applied.
     EXPECT_EQ(trainer.step(), 2);
+    // The cancelled run also leaves usable weights of its last applied step, equal to the trainer's.
+    const LoadedModel kept = LoadModelCheckpoint(dir / "model.ckpt");
+    EXPECT_EQ(kept.info.step, 2);
+    GohaModel m = kept.model;
+    const auto wa = Weights(trainer.model()), wb = Weights(m);
+    ASSERT_EQ(wa.size(), wb.size());
+    for (size_t i = 0; i < wa.size(); ++i) ASSERT_TRUE(torch::equal(wa[i], wb[i])) << i;
+    EXPECT_EQ(LoadModelCheckpoint(dir / "model-fp16.ckpt").info.step, 2);
   }
   ASSERT_TRUE(fs::exists(StatePath(dir)));
   RunContext fresh;
