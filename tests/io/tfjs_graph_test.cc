@@ -99,7 +99,7 @@ INSTANTIATE_TEST_SUITE_P(Models, TfjsGolden,
 std::string B64(const std::string& s) {
   static const char* k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;
-  uint32_t val = 0;  // only the low 16 bits are ever read: unsigned, so the shifts cannot overflow
+  uint32_t val = 0;  // kept to its low 24 bits (the most ever read): unsigned, so no shift overflows
   int bits = -6;
   for (unsigned char c : s) {
     val = ((val << 8) | c) & 0xFFFFFFu;
