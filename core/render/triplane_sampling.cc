@@ -59,8 +59,10 @@ inline __attribute__((always_inline)) void SampleRange(const T* planes, int64_t 
 }
 
 // The channel loops vectorise; the build targets baseline x86-64, so GCC also emits an AVX2+FMA
-// clone chosen at load time on CPUs that have it (same results up to FMA rounding).
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__)
+// clone chosen at load time on CPUs that have it (same results up to FMA rounding). Not under
+// ThreadSanitizer: GCC instruments the clones' resolver, which the loader runs before TSan's
+// runtime exists, and every executable that links this file crashed at start.
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
 #define AVATAR_SIMD_CLONES __attribute__((target_clones("arch=haswell", "default")))
 #else
 #define AVATAR_SIMD_CLONES

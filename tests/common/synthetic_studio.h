@@ -4,29 +4,23 @@
 #include "morphable/morphable_test_util.h"
 
 #include <QByteArray>
-#include <QCoreApplication>
-#include <QSettings>
-#include <QStandardPaths>
 #include <QString>
 #include <QTemporaryDir>
 
-#include "ui/studio.h"
+#include "common/test_settings.h"
 
 namespace avatar::ui::testing {
 
 // Saves a synthetic morphable model (smooth random bases on the installed topology) in `dir`
 // and points the studio at it, so tests drive the real path without depending on the committed
-// model; then switches QSettings to a test-mode store cleared of earlier runs. Returns an error
+// model; then gives the process an empty settings store of its own. Returns an error
 // message, empty on success.
 inline QString UseSyntheticModelAndTestSettings(const QTemporaryDir& dir) {
   if (!dir.isValid()) return QStringLiteral("no temporary folder for the synthetic model");
   const std::string model = dir.filePath(QStringLiteral("synthetic.avmm")).toStdString();
   morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 6, 12).Save(model);
   qputenv("AVATAR_MORPHABLE_MODEL", QByteArray::fromStdString(model));
-  QStandardPaths::setTestModeEnabled(true);
-  SetApplicationIdentity();
-  QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
-  QSettings().clear();
+  UsePrivateTestSettings(QStringLiteral("AvatarStudioTest"));
   return {};
 }
 

@@ -13,6 +13,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "common/test_settings.h"
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
@@ -43,10 +44,7 @@ class MainWindowTest : public QObject {
 
  private slots:
   void initTestCase() {
-    QStandardPaths::setTestModeEnabled(true);
-    SetApplicationIdentity();
-    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioTest"));
-    QSettings().clear();
+    testing::UsePrivateTestSettings(QStringLiteral("AvatarStudioTest"));
   }
 
   void droppedPortraitIsVisibleInTheViewport() {

@@ -8,6 +8,7 @@
 #include <QTemporaryDir>
 #include <QtTest/QtTest>
 
+#include "common/test_settings.h"
 #include "core/util/error.h"
 #include "ui/export_dialog.h"
 #include "ui/panels.h"
@@ -20,10 +21,7 @@ class PanelsTest : public QObject {
 
  private slots:
   void initTestCase() {
-    QStandardPaths::setTestModeEnabled(true);
-    SetApplicationIdentity();
-    QCoreApplication::setOrganizationName(QStringLiteral("AvatarStudioPanelsTest"));
-    QSettings().clear();
+    testing::UsePrivateTestSettings(QStringLiteral("AvatarStudioPanelsTest"));
   }
 
   void expressionPresetsRoundTrip() {

@@ -5,6 +5,7 @@
 // LibTorch (via the morphable model, in common/synthetic_studio.h) first: Qt's `slots` macro breaks its headers.
 #include "common/synthetic_studio.h"
 
+#include <QDeadlineTimer>
 #include <QSettings>
 #include <QSignalSpy>
 #include <QStandardPaths>
@@ -30,6 +31,37 @@
 
 namespace avatar::ui {
 namespace {
+
+// Records a signal that the preview worker emits on its own thread. QSignalSpy (Qt 6.4)
+// connects directly, so it would append on the worker thread while the test reads it on the GUI
+// thread (a data race), and its wait() counts only signals emitted after the call: a worker
+// quicker than the test (an option error, under ThreadSanitizer) made `failed.wait()` time out.
+// This spy takes the signal through the GUI thread's event queue and is read on that thread only.
+class WorkerSpy : public QObject {
+ public:
+  template <typename Sender, typename... Args>
+  WorkerSpy(const Sender* sender, void (Sender::*signal)(Args...)) {
+    connect(
+        sender, signal, this,
+        [this](Args... args) {
+          calls_.append(QVariantList{QVariant::fromValue(std::decay_t<Args>(args))...});
+        },
+        Qt::QueuedConnection);
+  }
+  // Turns the event loop until `n` signals in all have arrived; false after `timeout_ms`.
+  bool waitForCount(qsizetype n, int timeout_ms) {
+    QDeadlineTimer deadline(timeout_ms);
+    while (calls_.size() < n && !deadline.hasExpired()) QTest::qWait(5);
+    return calls_.size() >= n;
+  }
+  qsizetype count() const { return calls_.size(); }
+  bool isEmpty() const { return calls_.isEmpty(); }
+  const QVariantList& first() const { return calls_.first(); }
+  const QVariantList& last() const { return calls_.last(); }
+
+ private:
+  QList<QVariantList> calls_;
+};
 
 // Holds renders until the test lets them through, so a test knows a frame is rendering (or not)
 // from events instead of hoping a sleep was long enough.
@@ -137,7 +169,7 @@ class PreviewWorkerTest : public QObject {
     PreviewWorker worker;
     auto source = std::make_shared<GatedSource>();
     worker.setSource(source);
-    QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    WorkerSpy frames(&worker, &PreviewWorker::frameReady);
     PreviewRequest r;
     r.frame.width = r.frame.height = 32;
     r.frame.view.yaw = -50;
@@ -172,7 +204,7 @@ class PreviewWorkerTest : public QObject {
     PreviewWorker worker;
     auto source = std::make_shared<GatedSource>();
     worker.setSource(source);
-    QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    WorkerSpy frames(&worker, &PreviewWorker::frameReady);
     int passes_from_the_event_loop = 0;
     for (int i = 1; i <= 3; ++i) {
       PreviewRequest r;
@@ -197,11 +229,11 @@ class PreviewWorkerTest : public QObject {
   void renderErrorsArriveAsMessages() {
     PreviewWorker worker;
     worker.setSource(std::make_shared<PortraitFrameSource>(cv::Mat(10, 10, CV_8UC3, cv::Scalar::all(9))));
-    QSignalSpy failed(&worker, &PreviewWorker::renderFailed);
+    WorkerSpy failed(&worker, &PreviewWorker::renderFailed);
     PreviewRequest r;
     r.frame.width = 5;  // Below the minimum size.
     worker.request(r);
-    QVERIFY(failed.wait(5000));
+    QVERIFY(failed.waitForCount(1, 5000));
     QVERIFY(failed.first().at(0).toString().contains(QStringLiteral("16..4096")));
   }
 
@@ -236,10 +268,10 @@ class PreviewWorkerTest : public QObject {
     PreviewWorker worker;
     worker.setSource(previewed);
     worker.setAnalyzerFactory(DrivingAnalyzers({}));
-    QSignalSpy loaded(&worker, &PreviewWorker::driverLoaded);
-    QSignalSpy frames(&worker, &PreviewWorker::frameReady);
+    WorkerSpy loaded(&worker, &PreviewWorker::driverLoaded);
+    WorkerSpy frames(&worker, &PreviewWorker::frameReady);
     worker.loadDriver(clip, driving);
-    QVERIFY(loaded.wait(60000));
+    QVERIFY(loaded.waitForCount(1, 60000));
     QCOMPARE(loaded.first().at(1).toLongLong(), qint64{kFrames});
     std::vector<bool> face;
     for (int i = 0; i < kFrames; ++i) {
@@ -286,11 +318,11 @@ class PreviewWorkerTest : public QObject {
     PreviewWorker worker;
     worker.setSource(std::make_shared<RecordingSource>());
     worker.setAnalyzerFactory(DrivingAnalyzers({}));
-    QSignalSpy chosen(&worker, &PreviewWorker::drivingNeutralChosen);
-    QSignalSpy loaded(&worker, &PreviewWorker::driverLoaded);
-    QSignalSpy failed(&worker, &PreviewWorker::driverFailed);
+    WorkerSpy chosen(&worker, &PreviewWorker::drivingNeutralChosen);
+    WorkerSpy loaded(&worker, &PreviewWorker::driverLoaded);
+    WorkerSpy failed(&worker, &PreviewWorker::driverFailed);
     worker.loadDriver(clip, DrivingOptions{});
-    QVERIFY(loaded.wait(60000));
+    QVERIFY(loaded.waitForCount(1, 60000));
     QCOMPARE(chosen.count(), 1);
     const qint64 frame = chosen.first().at(0).toLongLong();
     const QString note = chosen.first().at(1).toString();
@@ -301,7 +333,7 @@ class PreviewWorkerTest : public QObject {
     DrivingOptions past;
     past.neutral_frame = 24;
     worker.loadDriver(clip, past);
-    QVERIFY(failed.wait(60000));
+    QVERIFY(failed.waitForCount(1, 60000));
     QVERIFY2(failed.first().at(1).toString().contains(QStringLiteral("past the end")),
              qPrintable(failed.first().at(1).toString()));
   }
@@ -313,7 +345,7 @@ class PreviewWorkerTest : public QObject {
     QVERIFY2(!clip.isEmpty(), "ffmpeg could not make the test clip");
     MainWindow w;
     w.setDialogsEnabled(false);
-    QSignalSpy loaded(&w, &MainWindow::driverLoaded);
+    QSignalSpy loaded(&w, &MainWindow::driverLoaded);  // emitted on the GUI thread
     w.openDriver(clip);
     QVERIFY(loaded.wait(60000));
     qInfo("status: %s", qPrintable(w.statusText()));
@@ -326,9 +358,9 @@ class PreviewWorkerTest : public QObject {
 
   void badDriverIsReportedNotThrown() {
     PreviewWorker worker;
-    QSignalSpy failed(&worker, &PreviewWorker::driverFailed);
+    WorkerSpy failed(&worker, &PreviewWorker::driverFailed);
     worker.loadDriver(QStringLiteral("/no/such/clip.mp4"), DrivingOptions{});
-    QVERIFY(failed.wait(5000));
+    QVERIFY(failed.waitForCount(1, 5000));
     QVERIFY(failed.first().at(1).toString().contains(QStringLiteral("clip.mp4")));
   }
 
