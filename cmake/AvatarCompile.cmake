@@ -21,3 +21,15 @@ function(avatar_system_includes target)
     set_target_properties(${target} PROPERTIES INTERFACE_SYSTEM_INCLUDE_DIRECTORIES "${dirs}")
   endif()
 endfunction()
+
+# Unity builds: the sources of a library are compiled in batches of AVATAR_UNITY_BATCH (one
+# translation unit per batch), which makes a clean build much cheaper (each unit pays the
+# precompiled LibTorch header's load once) and an incremental one dearer (an edit recompiles
+# its batch). Configure with -DAVATAR_UNITY_BUILD=OFF while editing core sources all day.
+option(AVATAR_UNITY_BUILD "Compile the libraries in unity batches (faster clean builds)" ON)
+set(AVATAR_UNITY_BATCH 6 CACHE STRING "Sources per unity batch (AVATAR_UNITY_BUILD)")
+function(avatar_unity_build target)
+  if(AVATAR_UNITY_BUILD)
+    set_target_properties(${target} PROPERTIES UNITY_BUILD ON UNITY_BUILD_BATCH_SIZE ${AVATAR_UNITY_BATCH})
+  endif()
+endfunction()

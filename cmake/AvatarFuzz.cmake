@@ -60,8 +60,10 @@ target_include_directories(avatar_fuzz_core SYSTEM PUBLIC ${TORCH_INCLUDE_DIRS} 
 target_link_libraries(avatar_fuzz_core
   PUBLIC ${TORCH_LIBRARIES} ${OpenCV_LIBS} glm::glm nlohmann_json::nlohmann_json Threads::Threads JPEG::JPEG)
 target_precompile_headers(avatar_fuzz_core PRIVATE <torch/torch.h> <opencv2/core.hpp> <nlohmann/json.hpp>)
+avatar_unity_build(avatar_fuzz_core)  # unity batches, as the normal build (cmake/AvatarCompile.cmake)
 set_source_files_properties(${PROJECT_SOURCE_DIR}/core/io/resources.cc PROPERTIES
-  COMPILE_DEFINITIONS AVATAR_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
+  COMPILE_DEFINITIONS AVATAR_SOURCE_DIR="${PROJECT_SOURCE_DIR}" SKIP_UNITY_BUILD_INCLUSION ON)
+set_source_files_properties(${PROJECT_SOURCE_DIR}/core/io/tfjs_graph.cc PROPERTIES SKIP_UNITY_BUILD_INCLUSION ON)
 
 # One executable per tests/fuzz/NAME_fuzz.cc.
 set(AVATAR_FUZZ_TARGETS tfjs_graph keras_layers onnx checkpoint avatar_file dataset keyframes model_config image video presets)

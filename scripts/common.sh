@@ -9,13 +9,23 @@ BUILD_DIR="${AVATAR_BUILD_DIR:-$REPO_ROOT/build}"
 AVATAR_DATA="${AVATAR_DATA_DIR:-${XDG_CACHE_HOME:-$HOME/.cache}/avatar-studio}"
 export AVATAR_DATA_DIR="$AVATAR_DATA"
 
-# Configures (once) and builds the project in Release mode with Ninja.
+# Configures (once) and builds the project in Release mode with Ninja: the targets given (e.g.
+# avatar-studio for the demo: the app and the libraries it links), or everything (tests included).
 build_project() {
   if [ ! -f "$BUILD_DIR/build.ninja" ]; then
     say "Configuring in $BUILD_DIR"
     cmake -S "$REPO_ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release >"$BUILD_DIR.configure.log" 2>&1 ||
       { cat "$BUILD_DIR.configure.log"; die "CMake configuration failed (log above)"; }
   fi
-  say "Building (this takes a few minutes the first time)"
-  cmake --build "$BUILD_DIR" -- -k 0 || die "the build failed (errors above)"
+  local what="everything"
+  local targets=()
+  if [ $# -gt 0 ]; then
+    what="$*"
+    for t in "$@"; do targets+=(--target "$t"); done
+  fi
+  say "Building $what (this takes a while the first time; ccache makes later builds fast)"
+  local start
+  start=$(date +%s)
+  cmake --build "$BUILD_DIR" "${targets[@]}" -- -k 0 || die "the build failed (errors above)"
+  say "Build: $(($(date +%s) - start)) s"
 }

@@ -15,8 +15,6 @@
 namespace avatar::face {
 namespace {
 
-const char* const kReinstall = "; reinstall the models with scripts/setup";
-
 // Softmax expectation over the 66 bins of 3 degrees, centred on 0.
 float BinExpectation(const float* logits) {
   float hi = logits[0];

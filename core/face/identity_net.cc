@@ -18,8 +18,6 @@
 namespace avatar::face {
 namespace {
 
-const char* const kReinstall = "; reinstall the models with scripts/setup";
-
 // ONNX files are protobuf messages; a file that does not start like one (field 1 ir_version,
 // varint) is foreign. cv::dnn reports such files with a generic parse error, so check first.
 void CheckLooksLikeOnnx(const std::filesystem::path& file) {

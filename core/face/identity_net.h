@@ -16,6 +16,9 @@
 
 namespace avatar::face {
 
+// The hint that ends the load errors of the packaged face networks (identity, head pose).
+inline constexpr char kReinstall[] = "; reinstall the models with scripts/setup";
+
 // Reads an ONNX model with cv::dnn (OpenCV backend, CPU). Throws ModelLoad naming the file and
 // scripts/setup when it is missing, truncated or not an ONNX model.
 cv::dnn::Net LoadOnnxNet(const std::filesystem::path& file);

@@ -17,7 +17,7 @@ torch::Tensor Act(const torch::Tensor& x) {
   return F::leaky_relu(x, F::LeakyReLUFuncOptions().negative_slope(0.2)) * kSqrt2;
 }
 
-torch::nn::Conv2d Conv(int64_t in, int64_t out, int64_t k, bool bias = true) {
+torch::nn::Conv2d SrConv(int64_t in, int64_t out, int64_t k, bool bias = true) {
   return torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, k).padding(k / 2).bias(bias));
 }
 
@@ -80,9 +80,9 @@ torch::Tensor StyleConvImpl::forward(const torch::Tensor& x, const torch::Tensor
 }
 
 ResBlockImpl::ResBlockImpl(int64_t in, int64_t out, int mode) : in_(in), out_(out), mode_(mode) {
-  conv1_ = register_module("conv1", Conv(in, in, 3));
-  conv2_ = register_module("conv2", Conv(in, out, 3));
-  skip_ = register_module("skip", Conv(in, out, 1, false));
+  conv1_ = register_module("conv1", SrConv(in, in, 3));
+  conv2_ = register_module("conv2", SrConv(in, out, 3));
+  skip_ = register_module("skip", SrConv(in, out, 1, false));
 }
 
 torch::Tensor ResBlockImpl::forward(const torch::Tensor& x) {
@@ -112,11 +112,11 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
   }
   const int64_t top = num_levels_ - 1;
 
-  first_ = register_module("unet_first", Conv(3, unet_[top], 1));
+  first_ = register_module("unet_first", SrConv(3, unet_[top], 1));
   for (int64_t l = top; l >= 1; --l) {
     down_.push_back(register_module("unet_down" + std::to_string(4 << l), ResBlock(unet_[l], unet_[l - 1], -1)));
   }
-  final_conv_ = register_module("unet_final_conv", Conv(unet_[0], unet_[0], 3));
+  final_conv_ = register_module("unet_final_conv", SrConv(unet_[0], unet_[0], 3));
   final_linear_ = register_module("unet_final_linear", torch::nn::Linear(unet_[0] * 16, num_latent_ * style_dim_));
   for (int64_t l = 1; l <= top; ++l) {
     const std::string r = std::to_string(4 << l);
@@ -124,9 +124,9 @@ SuperResolutionImpl::SuperResolutionImpl(const ModelConfig& config)
     // SFT modulates the upper half of the StyleGAN channels at this resolution.
     const int64_t half = channels_[l] - channels_[l] / 2;
     auto branch = [&](const std::string& name) {
-      torch::nn::Sequential seq(Conv(unet_[l], unet_[l], 3),
+      torch::nn::Sequential seq(SrConv(unet_[l], unet_[l], 3),
                                 torch::nn::LeakyReLU(torch::nn::LeakyReLUOptions().negative_slope(0.2)),
-                                Conv(unet_[l], half, 3));
+                                SrConv(unet_[l], half, 3));
       return register_module(name + r, seq);
     };
     cond_scale_.push_back(branch("sft_scale"));
@@ -219,11 +219,11 @@ DualDiscriminatorImpl::DualDiscriminatorImpl(const ModelConfig& config) : size_(
     const int64_t wanted = 16384L * config.sr_channel_multiplier / (4 << l);
     channels_.push_back(std::max<int64_t>(1, std::min<int64_t>(config.disc_max_channels, wanted)));
   }
-  first_ = register_module("first", Conv(6, channels_.back(), 1));
+  first_ = register_module("first", SrConv(6, channels_.back(), 1));
   for (int l = levels - 1; l >= 1; --l) {
     blocks_.push_back(register_module("down" + std::to_string(4 << l), ResBlock(channels_[l], channels_[l - 1], -1)));
   }
-  final_conv_ = register_module("final_conv", Conv(channels_[0] + 1, channels_[0], 3));
+  final_conv_ = register_module("final_conv", SrConv(channels_[0] + 1, channels_[0], 3));
   fc1_ = register_module("fc1", torch::nn::Linear(channels_[0] * 16, channels_[0]));
   fc2_ = register_module("fc2", torch::nn::Linear(channels_[0], 1));
 }

@@ -65,16 +65,6 @@ std::vector<double> ProcrustesWeights(const Topology& topo) {
   return w;
 }
 
-std::vector<float> Flatten(const std::vector<cv::Point3f>& p) {
-  std::vector<float> out(kCoords);
-  for (size_t i = 0; i < p.size(); ++i) {
-    out[3 * i] = p[i].x;
-    out[3 * i + 1] = p[i].y;
-    out[3 * i + 2] = p[i].z;
-  }
-  return out;
-}
-
 std::vector<cv::Point3f> Unflatten(const float* f) {
   std::vector<cv::Point3f> out(kVertexCount);
   for (int i = 0; i < kVertexCount; ++i) out[i] = {f[3 * i], f[3 * i + 1], f[3 * i + 2]};

@@ -200,16 +200,18 @@ const std::vector<BadCase>& Cases() {
          cv::imencode(".png", Grace(), buf);
          WriteBytes(p, std::string(buf.begin(), buf.begin() + buf.size() / 2));
        },
-       Expect::kError, {"truncated.png"}},
+       // Its header is whole (so no size or header complaint): the decoder gives up on the pixels.
+       Expect::kError, {"truncated.png", "cannot decode image"}},
       {"TextPretendingToBeJpeg", "notes.jpg", [](const fs::path& p) { WriteBytes(p, "just some text, not a photo\n"); },
-       Expect::kError, {"notes.jpg"}},
+       Expect::kError, {"notes.jpg", "not a supported image"}},
       {"RandomBytesPng", "noise.png",
        [](const fs::path& p) {
          std::string s = "\x89PNG\r\n\x1a\n";
          for (int i = 0; i < 5000; ++i) s.push_back(static_cast<char>((i * 7919) % 251));
          WriteBytes(p, s);
        },
-       Expect::kError, {"noise.png"}},
+       // The bytes where IHDR keeps the size declare 1693351180 x 2519052094 pixels: refused before decoding.
+       Expect::kError, {"noise.png", "declares 1693351180x2519052094 pixels, above the limit"}},
       {"MissingFile", "does_not_exist.jpg", [](const fs::path&) {}, Expect::kError, {"not found", "does_not_exist.jpg"}},
       {"Folder", "folder.jpg", [](const fs::path& p) { fs::create_directories(p); }, Expect::kError, {"folder"}},
       {"OnePixel", "pixel.png", [](const fs::path& p) { cv::imwrite(p.string(), cv::Mat(1, 1, CV_8UC3, cv::Scalar(1, 2, 3))); },
@@ -226,10 +228,12 @@ const std::vector<BadCase>& Cases() {
                                  p.string() + "'";
          ASSERT_EQ(std::system(cmd.c_str()), 0) << "ffmpeg is needed to make this case (scripts/setup installs it)";
        },
-       Expect::kError, {"audio_only.mp4"}},
+       // No video stream: the video reader does not open it.
+       Expect::kError, {"audio_only.mp4", "as a video: the file is damaged or not a supported format"}},
       {"TruncatedVideo", "cut.mp4",
+       // Cut before the index (the "moov atom") the container needs.
        [](const fs::path& p) { WriteBytes(p, ReadBytes(testing::Sample("franck.mp4")).substr(0, 2000)); },
-       Expect::kError, {"cut.mp4"}},
+       Expect::kError, {"cut.mp4", "as a video: the file is damaged or not a supported format"}},
       {"BadFaceIndex", "index.jpg", [](const fs::path& p) { fs::copy_file(testing::Sample("grace_hopper.jpg"), p); },
        Expect::kError, {"only 1 face"}, -1, "--face-index 3"},
   };

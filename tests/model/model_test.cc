@@ -16,7 +16,7 @@
 namespace avatar {
 namespace {
 
-std::vector<int64_t> Shape(const torch::Tensor& t) { return t.sizes().vec(); }
+using testing::Shape;
 
 TEST(SegFormer, TinyStageAndOutputShapes) {
   torch::manual_seed(0);

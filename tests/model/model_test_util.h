@@ -13,6 +13,9 @@
 
 namespace avatar::testing {
 
+// A tensor's sizes, for EXPECT_EQ against a list.
+inline std::vector<int64_t> Shape(const torch::Tensor& t) { return t.sizes().vec(); }
+
 // The image encoder of the encoder-independent model tests: AVATAR_TEST_ENCODER, else mit_b0.
 // tests/model/CMakeLists.txt runs those tests (GohaModel.*, Checkpoint.*, the gradient test) a
 // second time with AVATAR_TEST_ENCODER=mobilenet_v2 (pretrained, from nsfwjs).

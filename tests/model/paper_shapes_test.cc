@@ -4,11 +4,12 @@
 
 #include "core/model/goha_model.h"
 #include "core/render/camera.h"
+#include "model_test_util.h"
 
 namespace avatar {
 namespace {
 
-std::vector<int64_t> Shape(const torch::Tensor& t) { return t.sizes().vec(); }
+using testing::Shape;
 
 TEST(PaperShapes, EncoderFeaturesAndAllTriplanes) {
   torch::manual_seed(30);

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/morphable/camera_label.h"
+#include "core/pipeline/session_access.h"
 #include "core/pipeline/session_source.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
@@ -174,9 +175,39 @@ TEST(SessionSource, RendersAtTheViewsCameraWithTheFramesExpressionUnchanged) {
   EXPECT_THROW(source.Render(request, ctx), InvalidOptions);
 }
 
+// What a viewer reads beside random-weight frames (the studio's viewport and status bar and
+// `animate` show the source's Label()): the neural source of a random-weights session says RANDOM
+// and "not a result", also once its avatar is refined; without the flag the source is labelled
+// with the model's own description.
 TEST(SessionSource, RandomWeightsAreLabelledAsNotAResult) {
-  EXPECT_NE(std::string(kRandomWeightsLabel).find("RANDOM"), std::string::npos);
-  EXPECT_NE(std::string(kRandomWeightsLabel).find("not a result"), std::string::npos);
+  SessionOptions options;
+  options.random_weights = true;
+  options.config = "tiny";
+  auto session = std::make_shared<const Session>(options);
+  SourceFit fit;
+  fit.camera = morphable::FrontalLabel();
+  fit.expressions = std::make_shared<RecordingExpressionSource>();
+  cv::Mat portrait = cv::Mat::zeros(512, 512, CV_8UC3);
+  cv::circle(portrait, cv::Point(256, 256), 170, cv::Scalar(120, 150, 200), cv::FILLED);
+  RunContext ctx;
+  const Avatar avatar = session->ReconstructFromAnalysis(PortraitFromAlignedImage(portrait), fit, ctx);
+
+  const std::string random = SessionFrameSource(session, avatar, /*random_weights=*/true).Label();
+  EXPECT_NE(random.find("RANDOM"), std::string::npos) << random;
+  EXPECT_NE(random.find("not a result"), std::string::npos) << random;
+
+  const std::string named = SessionFrameSource(session, avatar, /*random_weights=*/false).Label();
+  EXPECT_EQ(named, "Neural avatar: " + DescribeModel(session->Info()));
+
+  // Refined planes add what the refinement measured, and keep the warning.
+  const Avatar refined = SessionAccess::WithPlanes(avatar, SessionAccess::Canonical(avatar).clone(),
+                                                   SessionAccess::Appearance(avatar).clone(),
+                                                   R"({"steps": 3, "psnr_before": 10.0, "psnr_after": 11.5})");
+  const std::string refined_label = SessionFrameSource(session, refined, /*random_weights=*/true).Label();
+  EXPECT_NE(refined_label.find("RANDOM"), std::string::npos) << refined_label;
+  EXPECT_NE(refined_label.find("not a result"), std::string::npos) << refined_label;
+  EXPECT_NE(refined_label.find("refined on the photo: 3 steps, source-view PSNR 10.00 -> 11.50 dB"), std::string::npos)
+      << refined_label;
 }
 
 }  // namespace

@@ -52,7 +52,17 @@ TEST(Camera, OrbitZeroIsTheFrontalConstant) {
   EXPECT_TRUE(torch::equal(f.cam2world[1], FrontalCam2World()));
   EXPECT_NEAR(f.intrinsics[0][0][0].item<double>(), 4.2647, 1e-6);
   EXPECT_NEAR(f.intrinsics[0][1][2].item<double>(), 0.5, 0.0);
-  EXPECT_NEAR(2.0 * std::atan(0.5 / kFocal) * 180.0 / M_PI, 13.37, 0.01);
+  // The field of view the frontal camera sees is EG3D's published 13.37 degrees (FFHQ's focal of
+  // 4.2647 image widths): points on the head's depth at half that angle off the axis, left, right,
+  // up and down, project to the image's edges (1e-3 of the width: 13.37 has two decimals).
+  const double half = 13.37 / 2.0 * M_PI / 180.0;
+  const double off = kCameraRadius * std::tan(half);
+  const torch::Tensor edges = torch::tensor({off, 0.0, 0.0, -off, 0.0, 0.0, 0.0, off, 0.0, 0.0, -off, 0.0}, kF64);
+  const torch::Tensor uv = ProjectPoints(edges.view({1, 4, 3}), FrontalCameras(1, kF64))[0];
+  EXPECT_NEAR(uv[0][0].item<double>(), 1.0, 1e-3);  // world +x: the right edge
+  EXPECT_NEAR(uv[1][0].item<double>(), 0.0, 1e-3);
+  EXPECT_NEAR(uv[2][1].item<double>(), 0.0, 1e-3);  // world +y: the top edge
+  EXPECT_NEAR(uv[3][1].item<double>(), 1.0, 1e-3);
 }
 
 TEST(Camera, AxesFollowOpenCvInAYUpWorld) {

@@ -368,7 +368,8 @@ TEST(OccupancyGrid, DilationAndLookup) {
   const torch::Tensor block = near(4).view({8, 1, 1}) & near(4).view({1, 8, 1}) & near(2).view({1, 1, 8});
   const torch::Tensor faces = face.view({8, 1, 1}) | face.view({1, 8, 1}) | face.view({1, 1, 8});
   EXPECT_TRUE(torch::equal(d1, block | faces));
-  EXPECT_TRUE(torch::equal(grid.Dilated(1), grid.Dilated(1)));  // kept
+  // Computed once and kept: a later call hands out the same mask (same storage), not a new one.
+  EXPECT_EQ(grid.Dilated(1).data_ptr(), d1.data_ptr());
   EXPECT_FALSE(grid.AllOccupied(1));
   EXPECT_TRUE(grid.AllOccupied(4));  // the faces' layer alone covers an 8^3 grid at dilation 4
   // Cell centres: -0.5 + (i + 0.5) / 8.

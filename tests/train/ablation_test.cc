@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <iostream>
 #include <map>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -287,8 +288,17 @@ TEST(Ablation, ShippedWeightsInitialiseEveryVariant) {
 
 // The bases path can fit expression-dependent targets: one source, two targets told apart only
 // by their coefficients. T_c (and T_p) are shared by the pair, so only T_e can fit both; the best
-// any single image can do is their mean, whose PSNR bounds what a network without a working
-// expression path reaches.
+// any single image can do is their mean, whose PSNR (22.12 dB) bounds what a network without a
+// working expression path reaches. Judged by the worse pair's PSNR, as the mean of the
+// evaluations over the last 100 steps: jittered training renders at lr 3e-3 make the curve noisy
+// (+-4 dB from one evaluation to the next), and the best of 12 evaluations at 300 steps, the test
+// before, failed on another CPU (27.79 dB against a bar of 28.12). Measured 2026-12-04 (AMD EPYC,
+// AVX-512) over AVATAR_THREADS 1 and 2 and the OpenBLAS core types Haswell (this CPU's default),
+// Zen, SkylakeX, Sandybridge, Prescott, and Haswell with oneDNN and ATen limited to AVX2 (a machine
+// without AVX-512): mean of the evaluations at steps 310-400 29.93 (Prescott) to 30.44 dB (AVX2),
+// 7.8-8.3 dB above the bound (a spread of 0.52 dB; at 300 steps the curve was still rising and the
+// same mean spread over 2.3 dB). The bar asks for 5 dB above the bound: 2.8 dB below the lowest
+// measurement, 5 times the spread.
 TEST(Ablation, TinyExpressionBasesOverfitTwoExpressions) {
   torch::manual_seed(35);
   const ModelConfig c = TinyVariant(/*appearance=*/false, /*bases=*/true, 4);
@@ -306,22 +316,26 @@ TEST(Ablation, TinyExpressionBasesOverfitTwoExpressions) {
   const torch::Tensor mean = targets.mean(0, true).expand_as(targets);
   const double bound = std::max(Psnr(mean[0].unsqueeze(0), targets[0].unsqueeze(0)),
                                 Psnr(mean[1].unsqueeze(0), targets[1].unsqueeze(0)));
-  const int steps = 300;
-  // Jittered training renders and lr 3e-3 make the curve noisy: the best evaluation counts (as
-  // in Trainer.TinyOverfitsOnePair), judged by its worse pair.
-  double best = 0.0;
+  const auto worse_pair_psnr = [&] {
+    const auto e = trainer.Evaluate(batch);  // deterministic renders; draws no random numbers
+    return std::min(Psnr(e.expression[0].unsqueeze(0), e.target[0].unsqueeze(0)),
+                    Psnr(e.expression[1].unsqueeze(0), e.target[1].unsqueeze(0)));
+  };
+  const double start = worse_pair_psnr();
+  const int steps = 400, every = 10, judged = 10;
+  std::vector<double> curve;
   for (int i = 0; i < steps; ++i) {
     ASSERT_FALSE(trainer.Step(batch).skipped);
-    if ((i + 1) % 25 == 0) {
-      const auto e = trainer.Evaluate(batch);
-      const double p0 = Psnr(e.expression[0].unsqueeze(0), e.target[0].unsqueeze(0));
-      const double p1 = Psnr(e.expression[1].unsqueeze(0), e.target[1].unsqueeze(0));
-      best = std::max(best, std::min(p0, p1));
-      std::cout << "bases overfit step " << i + 1 << ": PSNR I_c+e " << p0 << " / " << p1 << " dB (I_c "
-                << Psnr(e.canonical, e.target) << " dB; one image for both: at most " << bound << " dB)\n";
-    }
+    if ((i + 1) % every == 0) curve.push_back(worse_pair_psnr());
   }
-  EXPECT_GT(best, bound + 6.0) << "the bases did not tell the two expressions apart";
+  double end = 0.0;
+  for (int k = 0; k < judged; ++k) end += curve[curve.size() - 1 - k] / judged;
+  std::cout << "bases overfit: worse pair's PSNR of I_c+e every " << every << " steps:";
+  for (const double p : curve) std::cout << " " << p;
+  std::cout << "\nbases overfit: start " << start << " dB, one image for both at most " << bound
+            << " dB, mean of the last " << judged << " evaluations " << end << " dB (" << end - bound
+            << " dB above that bound)\n";
+  EXPECT_GT(end, bound + 5.0) << "the bases did not tell the two expressions apart";
 }
 
 }  // namespace

@@ -196,15 +196,25 @@ std::vector<double> TrainCurve(int64_t patch_size, int64_t chunk, int steps, int
   return curve;
 }
 
+// 8x8 patches of the 16x16 render learn the whole image: judged by the mean whole-image L1 of the
+// evaluations at steps 80-100 against the untrained network's (step 0). The curve is noisy (a rise
+// to 0.82 at step 10, swings of 2x between evaluations to step 70; the last evaluation of 60
+// steps, the test before, ranged 0.08-0.38 over the configurations below). Measured 2026-12-04
+// (AMD EPYC, AVX-512) over AVATAR_THREADS 1 and 2 and the OpenBLAS core types Haswell (this CPU's
+// default), Zen, SkylakeX, Sandybridge, Prescott, and Haswell with oneDNN and ATen limited to AVX2:
+// start 0.4177 everywhere, end 0.0625 (Sandybridge) to 0.0739 (SkylakeX), 0.150-0.177 of the start
+// (spread 0.011). The bar, a third of the start (0.139), is 0.065 above the highest measurement,
+// 6 times the spread.
 TEST(TrainPatches, PatchTrainingLearns) {
-  const int steps = 60, every = 10;
-  // 8x8 patches of the 16x16 render. Measured 2026-12-03: 0.418 at the start, 0.123 after 60 steps
-  // (whole images from the same start: 0.099), with a rise to 0.82 at step 10.
+  const int steps = 100, every = 5, judged = 5;
   const std::vector<double> patches = TrainCurve(8, 48, steps, every);
+  double end = 0.0;
+  for (int k = 0; k < judged; ++k) end += patches[patches.size() - 1 - k] / judged;
   std::cout << "8x8 patches: whole-image L1 of I_c+e+p every " << every << " steps:";
   for (const double l1 : patches) std::cout << " " << l1;
-  std::cout << "\n";
-  EXPECT_LT(patches.back(), 0.6 * patches.front()) << "patch training did not learn";
+  std::cout << "\n8x8 patches: start " << patches.front() << ", mean of the last " << judged << " evaluations " << end
+            << " (ratio " << end / patches.front() << ")\n";
+  EXPECT_LT(end, patches.front() / 3.0) << "patch training did not learn";
 }
 
 TEST(TrainPatches, ResumeWithPatchesAndChunksContinuesExactly) {

@@ -5,8 +5,11 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <iostream>
 #include <thread>
+#include <vector>
 
+#include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -312,8 +315,32 @@ TEST(Trainer, DISABLED_StateWriterProcess) {
 
 extern "C" char** environ;
 
+// The names of the files directly in `dir` that process `pid` holds open for writing (its
+// /proc/PID/fd links and the access mode in /proc/PID/fdinfo).
+std::vector<std::string> FilesOpenForWriting(pid_t pid, const fs::path& dir) {
+  std::vector<std::string> names;
+  const std::string proc = "/proc/" + std::to_string(pid);
+  std::error_code ec;
+  for (fs::directory_iterator it(proc + "/fd", ec), end; !ec && it != end; it.increment(ec)) {
+    std::error_code link_ec;
+    const fs::path target = fs::read_symlink(it->path(), link_ec);
+    if (link_ec || target.parent_path() != dir) continue;
+    std::ifstream info(proc + "/fdinfo/" + it->path().filename().string());
+    std::string key;
+    long flags = -1;  // "flags:\t0100001", octal
+    while (info >> key) {
+      if (key == "flags:") {
+        info >> std::oct >> flags;
+        break;
+      }
+    }
+    if (flags >= 0 && (flags & O_ACCMODE) != O_RDONLY) names.push_back(target.filename().string());
+  }
+  return names;
+}
+
 TEST(Trainer, KillDuringAStateWriteLeavesTheLastStateLoadable) {
-  const fs::path dir = TempDir("kill");
+  const fs::path dir = fs::canonical(TempDir("kill"));
   const std::string var = "AVATAR_TRAINER_KILL_DIR=" + dir.string();
   std::vector<char*> env;
   for (char** e = environ; *e != nullptr; ++e) env.push_back(*e);
@@ -323,18 +350,54 @@ TEST(Trainer, KillDuringAStateWriteLeavesTheLastStateLoadable) {
   std::string filter = "--gtest_filter=Trainer.DISABLED_StateWriterProcess", disabled = "--gtest_also_run_disabled_tests";
   std::vector<char*> argv = {const_cast<char*>(self.c_str()), filter.data(), disabled.data(), nullptr};
   for (int round = 0; round < 3; ++round) {
+    SCOPED_TRACE("round " + std::to_string(round));
     pid_t pid = 0;
     ASSERT_EQ(posix_spawn(&pid, self.c_str(), nullptr, nullptr, argv.data(), env.data()), 0);
-    for (int i = 0; i < 600 && !fs::exists(dir / "state.ckpt"); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    ASSERT_TRUE(fs::exists(dir / "state.ckpt")) << "the writer process wrote nothing";
-    std::this_thread::sleep_for(std::chrono::milliseconds(150 + 170 * round));
-    ASSERT_EQ(::kill(pid, SIGKILL), 0);
+    // The writer is stopped (SIGSTOP) when it holds a file of the folder open for writing, and
+    // killed while stopped: the kill lands inside a state write, between the open of the file
+    // being written and its rename. A write that ended between the look and the stop is let go on.
+    // In round 0 the first write is let through (a state to fall back on); later rounds kill the
+    // new writer's first write, beside the state the earlier rounds left. The deadline is a hang
+    // limit (the writer writes a state every few milliseconds), not a speed target.
+    std::string writing;
     int status = 0;
-    ASSERT_EQ(::waitpid(pid, &status, 0), pid);
-    EXPECT_TRUE(WIFSIGNALED(status)) << "the writer ended before it was killed";
+    bool ended = false;
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (writing.empty() && !ended && std::chrono::steady_clock::now() < until) {
+      if ((round == 0 && !fs::exists(dir / "state.ckpt")) || FilesOpenForWriting(pid, dir).empty()) {
+        ended = ::waitpid(pid, &status, WNOHANG) == pid;
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        continue;
+      }
+      ASSERT_EQ(::kill(pid, SIGSTOP), 0);
+      ASSERT_EQ(::waitpid(pid, &status, WUNTRACED), pid);
+      if (!WIFSTOPPED(status)) {
+        ended = true;
+        break;
+      }
+      const std::vector<std::string> open = FilesOpenForWriting(pid, dir);
+      if (!open.empty()) {
+        writing = open.front();
+        break;
+      }
+      ASSERT_EQ(::kill(pid, SIGCONT), 0);
+    }
+    if (!ended) {
+      ASSERT_EQ(::kill(pid, SIGKILL), 0);
+      ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+    }
+    ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL) << "the writer ended before it was killed";
+    ASSERT_FALSE(writing.empty()) << "the writer was never caught writing within the hang limit";
+    // The kill landed while writing: the file open at that moment is a hidden work file of the
+    // writer (never the state itself), and it is left there, unrenamed, beside the last state.
+    EXPECT_EQ(writing.rfind(".state.tmp" + std::to_string(pid) + "_", 0), 0u) << "written in place: " << writing;
+    EXPECT_TRUE(fs::exists(dir / writing)) << writing;
+    std::cout << "round " << round << ": killed while writing " << writing << " ("
+              << (fs::exists(dir / writing) ? fs::file_size(dir / writing) : 0) << " of "
+              << fs::file_size(dir / "state.ckpt") << " bytes)\n";
     StageOneTrainer loaded(GohaModel(ModelConfig::Tiny()), TestOptions(), kStandIn);
     SyntheticSource source(ModelConfig::Tiny(), 1, false);
-    EXPECT_NO_THROW(loaded.LoadState(dir / "state.ckpt", &source)) << "round " << round;
+    EXPECT_NO_THROW(loaded.LoadState(dir / "state.ckpt", &source));
     EXPECT_EQ(loaded.step(), 1);
     EXPECT_EQ(source.cursor(), 1);
   }
@@ -370,6 +433,16 @@ TEST(Trainer, WeightsExportLoadsAsAModelCheckpoint) {
   fs::remove_all(dir);
 }
 
+// Judged against the untrained network (its PSNR at step 0), by the mean PSNR of the evaluations
+// over the last 100 steps: jittered training renders at lr 3e-3 make the curve noisy (+-2 dB
+// from one evaluation to the next), so neither the best nor the last evaluation is a stable
+// measure. Measured 2026-12-04 (AMD EPYC, AVX-512) over AVATAR_THREADS 1 and 2 and the
+// OpenBLAS core types Haswell (this CPU's default; Zen gives the same numbers), SkylakeX,
+// Sandybridge, Prescott, and Haswell with oneDNN and ATen limited to AVX2 (a machine without
+// AVX-512): start 11.26 dB everywhere; mean of the evaluations at steps 210-300 30.12 (Haswell,
+// both thread counts) to 31.21 dB (Sandybridge), i.e. 18.86-19.95 dB above the start (a spread of
+// 1.1 dB; the thread count changes nothing). The bar asks for 16 dB (the MSE falls 40x): 2.9 dB
+// below the lowest measurement, more than twice the spread.
 TEST(Trainer, TinyOverfitsOnePair) {
   torch::manual_seed(12);
   const ModelConfig c = ModelConfig::Tiny();
@@ -380,22 +453,24 @@ TEST(Trainer, TinyOverfitsOnePair) {
   StageOneTrainer trainer(GohaModel(c), o, kStandIn);
   SyntheticSource source(c, 1, false);
   const TrainBatch batch = source.Next();
-  const int steps = 300;
-  double psnr = 0.0, best = 0.0;
+  const auto psnr = [&] {
+    const auto e = trainer.Evaluate(batch);  // deterministic renders; draws no random numbers
+    return Psnr(e.full, e.target);
+  };
+  const double start = psnr();
+  const int steps = 300, every = 10, judged = 10;
+  std::vector<double> curve;
   for (int i = 0; i < steps; ++i) {
     ASSERT_FALSE(trainer.Step(batch).skipped);
-    if ((i + 1) % 50 == 0) {
-      const auto e = trainer.Evaluate(batch);
-      psnr = Psnr(e.full, e.target);
-      best = std::max(best, psnr);
-      std::cout << "overfit step " << i + 1 << ": PSNR I_c+e+p " << psnr << " dB, I_c " << Psnr(e.canonical, e.target)
-                << " dB\n";
-    }
+    if ((i + 1) % every == 0) curve.push_back(psnr());
   }
-  // Jittered samples keep the plateau below a deterministic render's; where it sits depends on
-  // the CPU's float kernels: 33.3 dB at step 300 on the machine of 2026-12-01, 29.9 (best) on
-  // that of 2026-12-02 (plateau 29.2-29.7 to step 400). Both are far above the 21.8 dB at step 50.
-  EXPECT_GT(best, 28.0) << "tiny did not overfit one pair to 28 dB in " << steps << " steps";
+  double end = 0.0;
+  for (int k = 0; k < judged; ++k) end += curve[curve.size() - 1 - k] / judged;
+  std::cout << "overfit: PSNR I_c+e+p every " << every << " steps:";
+  for (const double p : curve) std::cout << " " << p;
+  std::cout << "\noverfit: start " << start << " dB, mean of the last " << judged << " evaluations " << end << " dB (+"
+            << end - start << " dB)\n";
+  EXPECT_GT(end, start + 16.0) << "tiny did not overfit one pair in " << steps << " steps";
 }
 
 }  // namespace

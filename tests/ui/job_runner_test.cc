@@ -4,6 +4,8 @@
 #include <QTimer>
 #include <QtTest/QtTest>
 
+#include "ui_test_main.h"
+
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -145,5 +147,5 @@ class JobRunnerTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::JobRunnerTest)
+AVATAR_UI_TEST(job_runner, avatar::ui::JobRunnerTest)
 #include "job_runner_test.moc"

@@ -11,6 +11,8 @@
 #include <QUrl>
 #include <QtTest/QtTest>
 
+#include "ui_test_main.h"
+
 #include <opencv2/imgproc.hpp>
 
 #include "common/test_settings.h"
@@ -198,5 +200,5 @@ class MainWindowTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::MainWindowTest)
+AVATAR_UI_TEST(main_window, avatar::ui::MainWindowTest)
 #include "main_window_test.moc"

@@ -8,6 +8,8 @@
 #include <QTemporaryDir>
 #include <QtTest/QtTest>
 
+#include "ui_test_main.h"
+
 #include "common/test_settings.h"
 #include "core/util/error.h"
 #include "ui/export_dialog.h"
@@ -116,5 +118,5 @@ class PanelsTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::PanelsTest)
+AVATAR_UI_TEST(panels, avatar::ui::PanelsTest)
 #include "panels_test.moc"

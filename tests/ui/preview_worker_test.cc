@@ -12,6 +12,8 @@
 #include <QTemporaryDir>
 #include <QtTest/QtTest>
 
+#include "ui_test_main.h"
+
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -380,5 +382,5 @@ class PreviewWorkerTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::PreviewWorkerTest)
+AVATAR_UI_TEST(preview_worker, avatar::ui::PreviewWorkerTest)
 #include "preview_worker_test.moc"

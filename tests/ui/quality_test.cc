@@ -13,10 +13,13 @@
 #include <QComboBox>
 #include <QDockWidget>
 #include <QElapsedTimer>
+#include <QFile>
 #include <QScreen>
 #include <QSignalSpy>
 #include <QTemporaryDir>
 #include <QtTest/QtTest>
+
+#include "ui_test_main.h"
 
 #include <nlohmann/json.hpp>
 
@@ -73,8 +76,15 @@ class QualityTest : public QObject {
     info.data_provenance = "random init (quality ladder ui test)";
     checkpoint_ = work_.filePath(QStringLiteral("tiny.ckpt"));
     SaveModelCheckpoint(checkpoint_.toStdString(), model, info);
-    // The estimates go to a cache of this test, never the user's data folder.
-    qputenv("AVATAR_QUALITY_CACHE", work_.filePath(QStringLiteral("quality-estimates.json")).toLocal8Bit());
+  }
+
+  // Each test function starts without estimates, in a cache of its own (never the user's data
+  // folder), so that none depends on what another measured or on the order they run in.
+  void init() {
+    const QString cache = work_.filePath(QStringLiteral("quality-estimates-%1.json")
+                                             .arg(QString::fromLatin1(QTest::currentTestFunction())));
+    QFile::remove(cache);
+    qputenv("AVATAR_QUALITY_CACHE", cache.toLocal8Bit());
   }
 
   void refinedReconstructionWithProgressAndMeasuredLadder() {
@@ -151,7 +161,6 @@ class QualityTest : public QObject {
   void cancelDuringRefinementKeepsThePreviousAvatar() {
     auto w = Window(checkpoint_);
     QVERIFY(QTest::qWaitForWindowExposed(w.get()));
-    QVERIFY(w->qualityEstimates().has_value());  // cached by the test above
     w->sourcePanel()->setQuality(QStringLiteral("standard"));
     QVERIFY(w->openPortrait(Sample(DataPaths::kDefaultPortrait), false));
     QSignalSpy done(w.get(), &MainWindow::reconstructionFinished);
@@ -160,6 +169,9 @@ class QualityTest : public QObject {
     const SessionFrameSource* before = Neural(*w);
     QVERIFY(before != nullptr);
     QVERIFY(before->avatar().RefinementInfo().empty());  // standard: one-shot planes
+    // That first use of the model measured the ladder (this test's cache started empty), so the
+    // `best` reconstruction below refines and then has nothing left to measure.
+    QVERIFY(w->qualityEstimates().has_value());
 
     w->sourcePanel()->setQuality(QStringLiteral("best"));
     bool refining = false;
@@ -182,5 +194,5 @@ class QualityTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::QualityTest)
+AVATAR_UI_TEST(quality, avatar::ui::QualityTest)
 #include "quality_test.moc"

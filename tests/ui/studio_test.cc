@@ -24,6 +24,8 @@
 #include <QUrl>
 #include <QtTest/QtTest>
 
+#include "ui_test_main.h"
+
 #include <filesystem>
 
 #include <opencv2/imgproc.hpp>
@@ -384,5 +386,5 @@ class StudioTest : public QObject {
 
 }  // namespace avatar::ui
 
-QTEST_MAIN(avatar::ui::StudioTest)
+AVATAR_UI_TEST(studio, avatar::ui::StudioTest)
 #include "studio_test.moc"
