@@ -251,8 +251,8 @@ TEST(TrainPatches, ResumeWithPatchesAndChunksContinuesExactly) {
 
 // Not a test: peak memory and step time of stage-I steps with and without ray chunking, one
 // setting per process (peak RSS only grows). Run, e.g.:
-//   AVATAR_MEASURE_CHUNK=0    test_train_patches --gtest_also_run_disabled_tests --gtest_filter='*Measure*'
-//   AVATAR_MEASURE_CHUNK=1024 test_train_patches --gtest_also_run_disabled_tests --gtest_filter='*Measure*'
+//   AVATAR_MEASURE_CHUNK=0    test_train --gtest_also_run_disabled_tests --gtest_filter='TrainPatches.*Measure*'
+//   AVATAR_MEASURE_CHUNK=1024 test_train --gtest_also_run_disabled_tests --gtest_filter='TrainPatches.*Measure*'
 // AVATAR_MEASURE_PATCH=N adds patches; AVATAR_MEASURE_CONFIG=cpu measures the `cpu` config
 // (random backbones, batch 4) instead of the tiny network at a 64x64 render with 24 + 24
 // samples and batch 2. Every term; pyramid perceptual stand-in; the first step is a warm-up and
