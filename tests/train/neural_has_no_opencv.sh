@@ -27,12 +27,22 @@ if [ "${#sources[@]}" -eq 0 ]; then
   echo "FAIL: no .cc sources of avatar_neural were given"
   exit 1
 fi
-lines=$(grep '"command":' "$commands" | grep -E -- '-o [^ ]*avatar_neural\.dir/[^ ]*\.cc\.o' || true)
-count=$(printf '%s\n' "$lines" | grep -c . || true)
-if [ "$count" -ne "${#sources[@]}" ]; then
-  echo "FAIL: $commands has $count compile commands of avatar_neural for ${#sources[@]} sources (regenerate the build)"
-  fail=1
+# A source compiles alone (OBJ_DIR/.../NAME.cc.o) or inside a unity batch (OBJ_DIR/Unity/unity_N_cxx.cxx,
+# which includes it by path; AVATAR_UNITY_BUILD); every source must be in one of the two.
+lines=$(grep '"command":' "$commands" | grep -E -- '-o [^ ]*avatar_neural\.dir/[^ ]*\.(cc|cxx)\.o' || true)
+obj_dir=$(printf '%s\n' "$lines" | grep -oE -- '-o [^ ]*avatar_neural\.dir/' | head -n 1 | sed 's/^-o //')
+build_dir=$(dirname "$commands")
+unity_files=()
+if [ -n "$obj_dir" ] && [ -d "$build_dir/$obj_dir/Unity" ]; then
+  mapfile -t unity_files < <(find "$build_dir/$obj_dir/Unity" -name 'unity_*_cxx.cxx')
 fi
+for s in "${sources[@]}"; do
+  if ! printf '%s\n' "$lines" | grep -qF -- "$(basename "$s").o" &&
+    { [ "${#unity_files[@]}" -eq 0 ] || ! grep -qF -- "\"$s\"" "${unity_files[@]}"; }; then
+    echo "FAIL: $commands compiles no object of avatar_neural's $s, alone or in a unity batch (regenerate the build)"
+    fail=1
+  fi
+done
 if printf '%s\n' "$lines" | grep -iE 'opencv|qt[56]|/qt'; then
   echo "FAIL: the compile commands above give avatar_neural an OpenCV or Qt include path"
   fail=1
@@ -66,5 +76,6 @@ if readelf -d "$exe" | grep NEEDED | grep -iE 'opencv|qt'; then
 fi
 [ "$fail" -eq 0 ] || exit 1
 echo "OK: ${#sources[@]} avatar_neural sources and ${#seen[@]} files they include (with their headers) include" \
-     "no OpenCV or Qt header; their $count compile commands have no OpenCV or Qt include path;" \
+     "no OpenCV or Qt header; their $(printf '%s\n' "$lines" | grep -c .) compile commands (${#unity_files[@]} unity" \
+     "batches) have no OpenCV or Qt include path;" \
      "$(basename "$exe") links $(readelf -d "$exe" | grep -c NEEDED) libraries directly, none of them OpenCV or Qt"
