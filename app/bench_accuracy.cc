@@ -1,19 +1,19 @@
-// `avatar-studio bench accuracy`: what waiting buys (core/pipeline/accuracy_benchmark.h). On
-// validation portraits of a dataset, for every quality preset and a sweep of refinement steps:
+// `avatar-studio bench accuracy`: what waiting buys (core/tools/accuracy_benchmark.h). On
+// validation portraits of a dataset, for every quality level and a sweep of refinement steps:
 // reconstruct seconds, frame seconds, PSNR/SSIM/perceptual at the source view and CSIM at the
 // turned views; writes accuracy.md, accuracy.json and accuracy.png into --out and prints the table.
 
 #include <iostream>
 
 #include "app/cmd_bench.h"
-#include "core/pipeline/accuracy_benchmark.h"
+#include "core/tools/accuracy_benchmark.h"
 #include "core/util/error.h"
 
 namespace avatar::app {
 
 namespace {
 
-// Checkpoint, data, portraits, output folder, presets, sweep, yaw, metrics; threads, data folder, verbosity.
+// Checkpoint, data, portraits, output folder, quality levels, sweep, yaw, metrics; threads, data folder, verbosity.
 using BenchAccuracyOptions = BenchSubjectOptions<AccuracyBenchmarkOptions>;
 
 int RunBenchAccuracyImpl(BenchAccuracyOptions options, RunContext& ctx) {
@@ -29,7 +29,7 @@ int RunBenchAccuracyImpl(BenchAccuracyOptions options, RunContext& ctx) {
 int RunBenchAccuracy(const std::vector<std::string>& args) {
   return RunBenchSubject<BenchAccuracyOptions>(
       args, "accuracy",
-      "On validation portraits of a dataset, for every quality preset and a sweep of refinement steps:\n"
+      "On validation portraits of a dataset, for every quality level and a sweep of refinement steps:\n"
       "reconstruct seconds, frame seconds, PSNR/SSIM/perceptual at the source view and CSIM at yaw +-30;\n"
       "writes accuracy.md, accuracy.json and accuracy.png (accuracy against seconds) into --out.",
       RunBenchAccuracyImpl);
@@ -38,7 +38,7 @@ int RunBenchAccuracy(const std::vector<std::string>& args) {
 }  // namespace
 
 AVATAR_REGISTER_BENCH_SUBJECT("accuracy",
-                              "quality presets and refinement steps: seconds vs PSNR/SSIM/perceptual and CSIM",
+                              "quality levels and refinement steps: seconds vs PSNR/SSIM/perceptual and CSIM",
                               RunBenchAccuracy);
 
 }  // namespace avatar::app

@@ -30,7 +30,7 @@
 #include "app/cmd_bench.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
-#include "core/pipeline/benchmarks.h"
+#include "core/tools/benchmarks.h"
 #include "core/pipeline/session.h"
 #include "core/util/error.h"
 #include "core/util/threads.h"

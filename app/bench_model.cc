@@ -6,7 +6,7 @@
 
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
-#include "core/pipeline/model_benchmark.h"
+#include "core/tools/model_benchmark.h"
 #include "core/util/error.h"
 
 namespace avatar::app {

@@ -8,7 +8,7 @@
 
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
-#include "core/pipeline/train_benchmark.h"
+#include "core/tools/train_benchmark.h"
 #include "core/util/error.h"
 
 namespace avatar::app {

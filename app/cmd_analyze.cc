@@ -12,8 +12,8 @@
 #include "app/cmd_bench.h"
 #include "app/commands.h"
 #include "core/io/video_io.h"
-#include "core/pipeline/benchmarks.h"
-#include "core/pipeline/media_analysis.h"
+#include "core/tools/benchmarks.h"
+#include "core/tools/media_analysis.h"
 #include "core/util/error.h"
 #include "core/util/threads.h"
 

@@ -61,16 +61,16 @@ int RunBenchRenderImpl(const BenchRenderOptions& options, RunContext& ctx) {
   const auto print_header = [&](const RenderBenchmarkReport& r) {
     std::cout << "Render benchmark: " << r.threads << " threads, batch " << options.bench.batch << ", "
               << options.bench.repeats
-              << " timed renders per preset (median), float32, deterministic sampling, inference mode.\n"
+              << " timed renders per case (median), float32, deterministic sampling, inference mode.\n"
               << "GEMM peak (fp32 1024^3, best of 5): " << Fixed(r.gemm_before, 1) << " GFLOP/s\n\n"
-              << "| preset | rays | samples/ray | planes | time (s) | rays/s | samples/s | plane sampling | decoder | "
+              << "| case | rays | samples/ray | planes | time (s) | rays/s | samples/s | plane sampling | decoder | "
                  "marching+other | decoder GFLOP/s | % of GEMM peak |\n"
               << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   };
   double gemm_before = 0.0;
   const auto print_row = [&](const RenderBenchmarkRow& rc) {
     std::ostringstream row;
-    row << "| " << rc.preset << " | " << rc.batch << "x" << rc.resolution << "^2 | " << rc.num_coarse << "+"
+    row << "| " << rc.name << " | " << rc.batch << "x" << rc.resolution << "^2 | " << rc.num_coarse << "+"
         << rc.num_importance << " | 3x32x" << rc.plane_size << "^2 | " << Fixed(rc.median_seconds, 3) << " | "
         << Fixed(rc.rays_per_second / 1e3, 1) << "k | " << Fixed(rc.samples_per_second / 1e6, 2) << "M | "
         << Fixed(100.0 * rc.sample_share, 0) << "% | " << Fixed(100.0 * rc.decoder_share, 0) << "% | "

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "app/commands.h"
-#include "core/pipeline/benchmarks.h"
+#include "core/tools/benchmarks.h"
 
 namespace avatar::app {
 
@@ -48,7 +48,7 @@ struct BenchSubjectOptions {
   }
 };
 
-// Options of `bench render` (the measurement: core/pipeline/benchmarks.h): presets, repeats,
+// Options of `bench render` (the measurement: core/tools/benchmarks.h): cases, repeats,
 // batch, rays per work item.
 using BenchRenderOptions = BenchSubjectOptions<RenderBenchmarkOptions>;
 

@@ -6,7 +6,7 @@
 
 #include "app/cli_util.h"
 #include "app/commands.h"
-#include "core/pipeline/morphable_build.h"
+#include "core/tools/morphable_build.h"
 #include "core/util/error.h"
 #include "core/util/options.h"
 

@@ -8,8 +8,8 @@
 #include <iostream>
 
 #include "app/commands.h"
-#include "core/pipeline/dataset_build.h"
-#include "core/pipeline/dataset_inspect.h"
+#include "core/tools/dataset_build.h"
+#include "core/tools/dataset_inspect.h"
 #include "core/util/error.h"
 
 namespace avatar::app {

@@ -1,5 +1,5 @@
 // `avatar-studio eval --checkpoint C --data DIR [--split val] [--max-pairs N] [--out DIR]`:
-// evaluates a checkpoint on a dataset split (core/pipeline/evaluate.h): the deterministic
+// evaluates a checkpoint on a dataset split (core/tools/evaluate.h): the deterministic
 // renders I_c, I_c+e, I_c+e+p (and SR when trained) and the morphable-preview baseline against
 // the targets, with PSNR, SSIM, L1, perceptual, CSIM, AED and APD. Writes OUT/eval.md,
 // OUT/eval.json and OUT/contact.png; Ctrl+C cancels (nothing is written then). Ablation
@@ -9,7 +9,7 @@
 #include <iostream>
 
 #include "app/commands.h"
-#include "core/pipeline/evaluate.h"
+#include "core/tools/evaluate.h"
 #include "core/util/error.h"
 
 namespace avatar::app {

@@ -9,8 +9,8 @@
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "app/commands.h"
-#include "core/pipeline/benchmarks.h"
-#include "core/pipeline/portrait_fit.h"
+#include "core/tools/benchmarks.h"
+#include "core/tools/portrait_fit.h"
 #include "core/util/error.h"
 #include "core/util/threads.h"
 

@@ -3,7 +3,7 @@
 #include <cstdio>
 #include <iostream>
 
-#include "core/pipeline/network_summary.h"
+#include "core/tools/network_summary.h"
 #include "core/pipeline/quality.h"
 #include "core/util/error.h"
 

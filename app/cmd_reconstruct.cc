@@ -7,7 +7,7 @@
 
 #include "core/io/image_io.h"
 #include "core/pipeline/quality.h"
-#include "core/pipeline/source_analysis.h"
+#include "core/pipeline/reconstruct.h"
 #include "core/util/error.h"
 #include "core/util/timer.h"
 
@@ -16,7 +16,7 @@ namespace avatar::app {
 void ReconstructOptions::Validate() const {
   AVATAR_CHECK_OPTION(!input.empty()) << "missing IMAGE: give the portrait photo to reconstruct";
   AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
-  if (!quality.empty()) QualityPresetByName(quality);
+  if (!quality.empty()) QualityLevelByName(quality);
   session.Validate();
   refine.Validate();
   common.Validate();
@@ -34,11 +34,12 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
               << so.seed << "); the avatar will look like noise.\n";
   }
   const cv::Mat image = LoadImageBgr(options.input);
-  RefineOptions refine = options.refine;
-  refine.data_dir = options.common.data_dir;
+  ReconstructionOptions ro;
+  ro.quality = options.quality;
+  ro.refine = options.refine;
+  ro.data_dir = options.common.data_dir;
   if (!options.quality.empty()) {
-    const QualityPreset& preset = QualityPresetByName(options.quality);
-    if (!refine.Enabled()) refine = preset.Refine(refine);
+    const QualityLevel& level = QualityLevelByName(options.quality);
     const std::filesystem::path cache = QualityCachePath(options.common.data_dir);
     bool measured = false;
     if (!ReadCachedQualityEstimates(cache, info.model_id, QualityEstimateThreads())) {
@@ -46,39 +47,26 @@ int RunReconstructImpl(const ReconstructOptions& options, RunContext& ctx) {
                 << QualityEstimateThreads() << " threads; cached in '" << cache.string() << "')...\n"
                 << std::flush;
     }
-    const QualityEstimates estimates = CachedOrMeasuredQualityEstimates(session, cache, ctx, refine, &measured);
-    std::cout << "Quality '" << preset.name << "' (" << preset.Describe(info) << "): "
-              << FormatQualityEstimate(estimates.Find(preset.name)) << " (" << (measured ? "measured now" : "cached")
+    const QualityEstimates estimates =
+        CachedOrMeasuredQualityEstimates(session, cache, ctx, EffectiveRefinement(ro), &measured);
+    std::cout << "Quality '" << level.name << "' (" << level.Describe(info) << "): "
+              << FormatQualityEstimate(estimates.Find(level.name)) << " (" << (measured ? "measured now" : "cached")
               << "; face analysis comes on top).\n";
   }
-  // Face-analysis refusals (no face, too small, turned too far) name the photo.
-  auto analyse = [&](auto&& run) {
-    try {
-      return run();
-    } catch (const InvalidInput& e) {
-      throw InvalidInput("'" + options.input + "': " + e.what());
-    }
-  };
-  Avatar avatar;
-  if (!refine.Enabled()) {
-    avatar = analyse([&] { return session.Reconstruct(image, ctx); });
-  } else {
-    SourceAnalysis analysis;
-    {
-      RunContext::ProgressRange range(ctx, 0.0, 0.4);
-      analysis = analyse([&] { return AnalyseSource(image, so.data_dir, ctx); });
-    }
-    {
-      RunContext::ProgressRange range(ctx, 0.4, 0.5);
-      avatar = session.ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
-    }
-    RunContext::ProgressRange range(ctx, 0.5, 1.0);
-    const RefineResult r = RefineAvatar(session, avatar, analysis, refine, ctx);
-    avatar = r.avatar;
+  Reconstruction r;
+  try {
+    r = ReconstructPortrait(session, image, ro, ctx);
+  } catch (const InvalidInput& e) {
+    // Face-analysis refusals (no face, too small, turned too far) name the photo.
+    throw InvalidInput("'" + options.input + "': " + e.what());
+  }
+  const Avatar& avatar = r.avatar;
+  if (r.refinement) {
     std::ostringstream line;
-    line << std::fixed << std::setprecision(2) << "Refined the planes on the source view: " << r.steps << " steps in "
-         << r.seconds << " s (stopped by " << r.stopped_by << "), source-view PSNR " << r.psnr_before << " -> "
-         << r.psnr_after << " dB (masked by the matte, " << info.render_size << " px render).\n";
+    line << std::fixed << std::setprecision(2) << "Refined the planes on the source view: " << r.refinement->steps
+         << " steps in " << r.refinement->seconds << " s (stopped by " << r.refinement->stopped_by
+         << "), source-view PSNR " << r.refinement->psnr_before << " -> " << r.refinement->psnr_after
+         << " dB (masked by the matte, " << info.render_size << " px render).\n";
     std::cout << line.str();
   }
   session.SaveAvatar(avatar, options.output);

@@ -1,14 +1,14 @@
 #pragma once
 // `avatar-studio reconstruct IMAGE -o FILE.avatar`: face analysis, morphable fit and the GOHA
 // reconstruction (T_c, T_p), saved as an avatar file for `render` and the studio.
-// `avatar-studio render FILE.avatar [--yaw --pitch --roll] [--expr name=value ...] [--preset]
+// `avatar-studio render FILE.avatar [--yaw --pitch --roll] [--expr name=value ...] [--mode]
 // -o out.png [--alpha] [--depth]`: one frame of an avatar.
 
 #include <string>
 #include <vector>
 
 #include "app/commands.h"
-#include "core/pipeline/refine.h"
+#include "core/pipeline/reconstruct.h"
 #include "core/pipeline/session.h"
 
 namespace avatar::app {
@@ -20,24 +20,19 @@ struct ReconstructOptions {
   std::string output = "portrait.avatar";
   // Model selection.
   SessionOptions session;
-  // Quality preset (core/pipeline/quality.h: instant ... best, paper); "" = none. Its refinement
+  // Quality level (core/pipeline/quality.h: instant ... best, paper); "" = none. Its refinement
   // applies unless --refine-steps or --refine-seconds is given.
   std::string quality;
   // Optional per-portrait refinement of the planes (--refine-steps, --refine-seconds, ...).
-  RefineOptions refine = NoRefinement();
+  RefineOptions refine = ReconstructionOptions::NoRefinement();
   // Threads, data folder, verbosity.
   CommonOptions common;
 
-  static RefineOptions NoRefinement() {
-    RefineOptions r;
-    r.steps = 0;
-    return r;
-  }
   template <typename V>
   void Visit(V&& v) {
     v("output", output, "Avatar file to write (.avatar)", 'o');
     v("quality", quality,
-      "Quality preset: instant, preview, standard, fine, best or paper (the published setting); see the list below");
+      "Quality level: instant, preview, standard, fine, best or paper (the published setting); see the list below");
     refine.Visit(v);
     session.Visit(v);
     common.Visit(v);
@@ -61,8 +56,8 @@ struct RenderCommandOptions {
   double roll = 0.0;
   // Expression controls, name=value (repeatable).
   std::vector<std::string> expr;
-  // preview, standard or final.
-  std::string preset = "final";
+  // Render mode: preview, standard or final.
+  std::string mode = "final";
   // Write RGBA with the rendered opacity as alpha.
   bool alpha = false;
   // Also write the depth map as a 16-bit PNG next to the output (<name>_depth.png).
@@ -79,7 +74,7 @@ struct RenderCommandOptions {
     v("pitch", pitch, "Camera pitch in degrees (positive: camera above)");
     v("roll", roll, "Camera roll in degrees");
     v("expr", expr, "Expression control name=value (repeatable), e.g. --expr jawOpen=0.5");
-    v("preset", preset, "preview (fast, small), standard (render size) or final (with super-resolution)");
+    v("mode", mode, "Render mode: preview (fast, small), standard (render size) or final (with super-resolution)");
     v("alpha", alpha, "Write RGBA with the rendered opacity as alpha");
     v("depth", depth, "Also write <output>_depth.png (16-bit, near 2.25 = 0, far 3.3 = 65535)");
     session.Visit(v);

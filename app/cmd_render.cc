@@ -16,7 +16,7 @@ void RenderCommandOptions::Validate() const {
   AVATAR_CHECK_OPTION(!output.empty()) << "--output must not be empty";
   AVATAR_CHECK_OPTION(std::isfinite(yaw) && std::isfinite(roll) && std::isfinite(pitch) && std::abs(pitch) < 90.0)
       << "--yaw, --pitch and --roll must be finite, --pitch within (-90, 90) degrees, got pitch " << pitch;
-  PresetFromName(preset);
+  RenderModeFromName(mode);
   ParseExpressionFlags(expr);
   session.Validate();
   common.Validate();
@@ -27,11 +27,9 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
   SessionOptions so = options.session;
   so.data_dir = options.common.data_dir;
   const AvatarFileInfo file = ReadAvatarFileInfo(options.input);
-  if (so.random_weights && so.checkpoint.empty() && file.model_id.rfind("random:", 0) == 0) {
-    // The avatar names its random weights (random:<config>:<seed>): rebuild exactly those.
-    const size_t a = file.model_id.find(':'), b = file.model_id.rfind(':');
-    so.config = file.model_id.substr(a + 1, b - a - 1);
-    so.seed = std::stoi(file.model_id.substr(b + 1));
+  if (so.random_weights && so.checkpoint.empty()) {
+    // The avatar names its random weights (RandomModelId): rebuild exactly those.
+    ParseRandomModelId(file.model_id, &so.config, &so.seed);
   }
   Timer timer;
   Session session(so);
@@ -47,7 +45,7 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
   view.pitch = -options.pitch;
   view.roll = -options.roll;
   const Frame frame =
-      session.Animate(avatar, ParseExpressionFlags(options.expr), view, PresetFromName(options.preset), &ctx);
+      session.Animate(avatar, ParseExpressionFlags(options.expr), view, RenderModeFromName(options.mode), &ctx);
   cv::Mat out = frame.bgr;
   if (options.alpha) {
     cv::Mat alpha;
@@ -58,8 +56,8 @@ int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx) {
     cv::merge(channels, 4, out);
   }
   SaveImage(options.output, out);
-  std::cout << "Rendered '" << options.input << "' (" << frame.bgr.cols << "x" << frame.bgr.rows << ", preset "
-            << options.preset << (frame.upsampled ? ", render upsampled" : "") << ") with the "
+  std::cout << "Rendered '" << options.input << "' (" << frame.bgr.cols << "x" << frame.bgr.rows << ", mode "
+            << options.mode << (frame.upsampled ? ", render upsampled" : "") << ") with the "
             << DescribeModel(session.Info()) << " to '" << options.output << "'";
   if (options.depth) {
     std::filesystem::path depth_path = options.output;
@@ -79,7 +77,7 @@ int RunRender(const std::vector<std::string>& args) {
     std::vector<std::string> positionals;
     if (!ParseCommand(options, args,
                       "avatar-studio render FILE.avatar [--yaw D --pitch D --roll D] [--expr name=value ...] "
-                      "[--preset preview|standard|final] -o out.png [--alpha] [--depth]",
+                      "[--mode preview|standard|final] -o out.png [--alpha] [--depth]",
                       "Renders one frame of an avatar from a camera and an expression.", &positionals)) {
       return kExitOk;
     }

@@ -1,6 +1,6 @@
 // `avatar-studio train --config C --data DIR --out RUN [--stage 1|2] [--init-weights CKPT]
 // [--resume] [--steps N] [--hours H]`: stage I or II of GOHA's training (core/train/trainer.h)
-// on a dataset written by `dataset build`. C is a preset (paper, lite, cpu, tiny) or a JSON file
+// on a dataset written by `dataset build`. C is a config name (paper, lite, cpu, tiny) or a JSON file
 // of ModelConfig fields (missing fields take the paper's values). Writes RUN/state.ckpt
 // (resumable state), RUN/train.jsonl (per-step log), RUN/model.ckpt and RUN/model-fp16.ckpt
 // (weights at the end), RUN/samples/step-XXXXXXX.png (sample grids) and RUN/curve.png (loss
@@ -23,7 +23,7 @@
 #include <iostream>
 
 #include "app/commands.h"
-#include "core/pipeline/training_run.h"
+#include "core/tools/training_run.h"
 #include "core/util/error.h"
 
 namespace avatar::app {

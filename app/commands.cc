@@ -9,6 +9,7 @@
 #include <opencv2/core/version.hpp>
 #include <torch/version.h>
 
+#include "app/cli_util.h"
 #include "core/pipeline/session.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
@@ -164,6 +165,8 @@ int Dispatch(const std::vector<std::string>& args) {
     PrintVersion();
     return kExitOk;
   }
+  // Flags renamed in 0.2 still work for one release, with a warning (cli_util.h).
+  const std::vector<std::string> line = RewriteRenamedFlags(args, std::cerr);
   for (const auto& c : CommandTable()) {
     if (first != c.name) continue;
     if (c.run == nullptr) {
@@ -171,7 +174,7 @@ int Dispatch(const std::vector<std::string>& args) {
                 << "). See 'avatar-studio --help' for what this version can do.\n";
       return kExitError;
     }
-    return c.run(std::vector<std::string>(args.begin() + 1, args.end()));
+    return c.run(std::vector<std::string>(line.begin() + 1, line.end()));
   }
   std::cerr << "avatar-studio: unknown command '" << first << "'. Run 'avatar-studio --help' for the list.\n";
   return kExitUsage;

@@ -18,7 +18,7 @@
 
 namespace avatar::ui {
 
-ExportDialog::ExportDialog(bool has_driver, const QString& preset, QWidget* parent)
+ExportDialog::ExportDialog(bool has_driver, const QString& config, QWidget* parent)
     : QDialog(parent), has_driver_(has_driver) {
   setWindowTitle(tr("Export Animation"));
   QSettings settings;
@@ -88,9 +88,10 @@ ExportDialog::ExportDialog(bool has_driver, const QString& preset, QWidget* pare
   audio_->setToolTip(tr("Copy the driving video's sound track into the MP4"));
   form->addRow(QString(), audio_);
 
-  auto* preset_label = new QLabel(tr("Network preset: %1").arg(preset), this);
-  preset_label->setToolTip(tr("The preset chosen in the source panel"));
-  form->addRow(QString(), preset_label);
+  auto* config_label = new QLabel(tr("Network size: %1").arg(config), this);
+  config_label->setObjectName(QStringLiteral("networkSizeLabel"));
+  config_label->setToolTip(tr("The network size chosen in the source panel"));
+  form->addRow(QString(), config_label);
 
   auto* buttons = new QDialogButtonBox(QDialogButtonBox::Ok | QDialogButtonBox::Cancel, this);
   buttons->button(QDialogButtonBox::Ok)->setText(tr("&Export"));

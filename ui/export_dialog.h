@@ -20,8 +20,9 @@ class ExportDialog : public QDialog {
   Q_OBJECT
 
  public:
-  // `has_driver`: a driving video or keyframes are loaded (enables "driver's pose" and audio).
-  ExportDialog(bool has_driver, const QString& preset, QWidget* parent = nullptr);
+  // `has_driver`: a driving video or keyframes are loaded (enables "driver's pose" and audio);
+  // `config`: the network size chosen in the source panel (shown).
+  ExportDialog(bool has_driver, const QString& config, QWidget* parent = nullptr);
 
   // The choices (after exec() returned Accepted). The plan's expression is left empty.
   ExportOptions exportOptions() const;

@@ -194,8 +194,8 @@ void MainWindow::createPanels() {
   source_dock->setFeatures(QDockWidget::DockWidgetMovable | QDockWidget::DockWidgetFloatable);
   addDockWidget(Qt::LeftDockWidgetArea, source_dock);
   connect(source_panel_, &SourcePanel::reconstructRequested, this, &MainWindow::reconstruct);
-  connect(source_panel_, &SourcePanel::presetChanged, this, [this](const QString& preset) {
-    preset_label_->setText(tr("Preset: %1").arg(preset));
+  connect(source_panel_, &SourcePanel::configChanged, this, [this](const QString& config) {
+    config_label_->setText(tr("Network size: %1").arg(config));
     showCachedQualityEstimates();
   });
   connect(source_panel_->randomWeightsBox(), &QCheckBox::toggled, this, [this] { showCachedQualityEstimates(); });
@@ -276,9 +276,10 @@ void MainWindow::createStatusBar() {
   frame_time_label_ = new QLabel(tr("Frame: -"), this);
   frame_time_label_->setToolTip(tr("Render time of the last viewport frame"));
   statusBar()->addPermanentWidget(frame_time_label_);
-  preset_label_ = new QLabel(tr("Preset: %1").arg(source_panel_->preset()), this);
-  preset_label_->setToolTip(tr("Network preset (choose it in the source panel)"));
-  statusBar()->addPermanentWidget(preset_label_);
+  config_label_ = new QLabel(tr("Network size: %1").arg(source_panel_->config()), this);
+  config_label_->setObjectName(QStringLiteral("networkSizeLabel"));
+  config_label_->setToolTip(tr("Network size of random weights (choose it in the source panel)"));
+  statusBar()->addPermanentWidget(config_label_);
 }
 
 void MainWindow::createMenus() {
@@ -359,7 +360,7 @@ void MainWindow::createMenus() {
 
 BackendOptions MainWindow::backendOptions() const {
   BackendOptions o;
-  o.preset = source_panel_->preset().toStdString();
+  o.config = source_panel_->config().toStdString();
   o.random_weights = source_panel_->randomWeights();
   o.renderer = source_panel_->morphablePreview() ? "morphable" : "neural";
   o.checkpoint = checkpoint_.toStdString();
@@ -377,14 +378,14 @@ void MainWindow::showCachedQualityEstimates() {
   SessionOptions so;
   so.checkpoint = b.checkpoint;
   so.random_weights = b.random_weights && b.checkpoint.empty();
-  so.config = b.preset;
+  so.config = b.config;
   so.data_dir = b.data_dir;
   std::optional<QualityEstimates> cached;
   try {
     const std::filesystem::path cache = QualityCachePath(b.data_dir);
     const std::filesystem::path ckpt = ResolveCheckpoint(so);
     const int threads = QualityEstimateThreads();
-    cached = ckpt.empty() ? ReadCachedQualityEstimates(cache, "random:" + so.config + ":" + std::to_string(so.seed), threads)
+    cached = ckpt.empty() ? ReadCachedQualityEstimates(cache, RandomModelId(so.config, so.seed), threads)
                           : ReadCachedQualityEstimatesForCheckpoint(cache, ckpt, threads);
   } catch (const std::exception&) {
     // No model found: the ladder says "not measured yet".
@@ -585,7 +586,7 @@ bool MainWindow::startExport(const ExportOptions& output, const AnimationPlan& p
 
 void MainWindow::showExportDialog() {
   if (!source_) return;
-  ExportDialog dialog(driving_panel_->hasDriver(), source_panel_->preset(), this);
+  ExportDialog dialog(driving_panel_->hasDriver(), source_panel_->config(), this);
   if (dialog.exec() != QDialog::Accepted) return;
   startExport(dialog.exportOptions(), dialog.plan());
 }
@@ -631,7 +632,7 @@ void MainWindow::saveExpressionPreset() {
     expression_panel_->savePreset(path);
     QSettings().setValue("expression/lastPreset", path);
   } catch (const std::exception& e) {
-    showError(tr("Could not save the preset"), QString::fromStdString(e.what()));
+    showError(tr("Could not save the expression preset"), QString::fromStdString(e.what()));
   }
 }
 
@@ -644,7 +645,7 @@ void MainWindow::loadExpressionPreset() {
     expression_panel_->loadPreset(path);
     QSettings().setValue("expression/lastPreset", path);
   } catch (const std::exception& e) {
-    showError(tr("Could not load the preset"), QString::fromStdString(e.what()));
+    showError(tr("Could not load the expression preset"), QString::fromStdString(e.what()));
   }
 }
 

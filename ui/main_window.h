@@ -1,9 +1,9 @@
 #pragma once
 // The studio's main window: the viewport in the middle; the source panel (portrait
-// thumbnail with detection/landmarks, preset, Reconstruct) on the left; pose and expression
+// thumbnail with detection/landmarks, network size, quality, Reconstruct) on the left; pose and expression
 // panels on the right; the driving panel (video, play/pause, timeline, neutral frame,
-// transfer mode, smoothing) at the bottom; a status bar with the last frame time, the preset
-// and the progress/cancel of the running job. Drag and drop: an image loads and reconstructs,
+// transfer mode, smoothing) at the bottom; a status bar with the last frame time, the network
+// size and the progress/cancel of the running job. Drag and drop: an image loads and reconstructs,
 // a video becomes the driver. Long jobs (reconstruction, export) run on the JobRunner; the
 // viewport renders on the PreviewWorker. Settings persist in QSettings.
 
@@ -154,7 +154,7 @@ class MainWindow : public QMainWindow {
   QMenu* recent_menu_ = nullptr;
   QLabel* status_label_ = nullptr;
   QLabel* frame_time_label_ = nullptr;
-  QLabel* preset_label_ = nullptr;
+  QLabel* config_label_ = nullptr;
   QLabel* stage_label_ = nullptr;
   QProgressBar* progress_ = nullptr;
   QPushButton* cancel_button_ = nullptr;

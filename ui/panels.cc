@@ -77,21 +77,28 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
   layout->addWidget(status_);
 
   auto* form = new QFormLayout;
-  preset_ = new QComboBox(this);
-  preset_->addItem(tr("Lite (fast, CPU)"), "lite");
-  preset_->addItem(tr("Paper (slow)"), "paper");
-  preset_->setToolTip(tr("Network size of the random-weight plumbing check (a trained model carries its own) (Alt+P)"));
-  preset_->setCurrentIndex(std::max(0, preset_->findData(QSettings().value("source/preset", "lite"))));
-  auto* preset_label = new QLabel(tr("&Preset:"), this);
-  preset_label->setBuddy(preset_);
-  form->addRow(preset_label, preset_);
+  config_ = new QComboBox(this);
+  config_->setObjectName(QStringLiteral("networkSize"));
+  config_->addItem(tr("Lite (fast, CPU)"), "lite");
+  config_->addItem(tr("Paper (slow)"), "paper");
+  config_->setToolTip(tr("Network size of the random-weight plumbing check (a trained model carries its own) (Alt+W)"));
+  {
+    // "source/preset" is the key of 0.1; read it while the new key is not written yet.
+    QSettings settings;
+    const QVariant saved = settings.contains("source/config") ? settings.value("source/config")
+                                                              : settings.value("source/preset", "lite");
+    config_->setCurrentIndex(std::max(0, config_->findData(saved)));
+  }
+  auto* config_label = new QLabel(tr("Net&work size:"), this);
+  config_label->setBuddy(config_);
+  form->addRow(config_label, config_);
   // The quality ladder (core/pipeline/quality.h), each entry with this machine's estimates.
   quality_ = new QComboBox(this);
   quality_->setObjectName(QStringLiteral("qualityLadder"));
   quality_->setSizeAdjustPolicy(QComboBox::AdjustToContents);
-  for (const QualityPreset& p : QualityLadder()) quality_->addItem(QString::fromStdString(p.name), QString::fromStdString(p.name));
+  for (const QualityLevel& p : QualityLadder()) quality_->addItem(QString::fromStdString(p.name), QString::fromStdString(p.name));
   quality_->setToolTip(
-      tr("Quality preset: render size, samples, super-resolution and refinement steps on the photo, from instant to "
+      tr("Quality level: render size, samples, super-resolution and refinement steps on the photo, from instant to "
          "best (paper = the published setting). Estimates are measured on this machine at first use. (Alt+Q)"));
   quality_->setCurrentIndex(std::max(0, quality_->findData(QSettings().value("source/quality", "standard"))));
   auto* quality_label = new QLabel(tr("&Quality:"), this);
@@ -99,9 +106,9 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
   form->addRow(quality_label, quality_);
   layout->addLayout(form);
   setQualityEstimates(std::nullopt);
-  connect(preset_, &QComboBox::currentIndexChanged, this, [this] {
-    QSettings().setValue("source/preset", preset());
-    emit presetChanged(preset());
+  connect(config_, &QComboBox::currentIndexChanged, this, [this] {
+    QSettings().setValue("source/config", config());
+    emit configChanged(config());
   });
   connect(quality_, &QComboBox::currentIndexChanged, this, [this] {
     QSettings().setValue("source/quality", quality());
@@ -154,8 +161,8 @@ void SourcePanel::redraw() {
 }
 
 void SourcePanel::setStatus(const QString& text) { status_->setText(text); }
-QString SourcePanel::preset() const { return preset_->currentData().toString(); }
-void SourcePanel::setPreset(const QString& preset) { preset_->setCurrentIndex(std::max(0, preset_->findData(preset))); }
+QString SourcePanel::config() const { return config_->currentData().toString(); }
+void SourcePanel::setConfig(const QString& config) { config_->setCurrentIndex(std::max(0, config_->findData(config))); }
 QString SourcePanel::quality() const { return quality_->currentData().toString(); }
 void SourcePanel::setQuality(const QString& name) { quality_->setCurrentIndex(std::max(0, quality_->findData(name))); }
 
@@ -164,7 +171,7 @@ void SourcePanel::setQualityEstimates(const std::optional<QualityEstimates>& est
   if (estimates) model.config_json = estimates->config_json;
   const auto& ladder = QualityLadder();
   for (int i = 0; i < quality_->count() && i < static_cast<int>(ladder.size()); ++i) {
-    const QualityPreset& p = ladder[static_cast<size_t>(i)];
+    const QualityLevel& p = ladder[static_cast<size_t>(i)];
     const QualityEstimate* e = estimates ? estimates->Find(p.name) : nullptr;
     quality_->setItemText(i, QStringLiteral("%1 \u2014 %2")
                                  .arg(QString::fromStdString(p.name), QString::fromStdString(FormatQualityEstimate(e))));
@@ -250,7 +257,7 @@ ExpressionPanel::ExpressionPanel(QWidget* parent) : QWidget(parent) {
   neutral->setToolTip(tr("Reset every expression control to 0 (Ctrl+N)"));
   connect(neutral, &QPushButton::clicked, this, &ExpressionPanel::resetToNeutral);
   auto* save = new QPushButton(tr("&Save..."), this);
-  save->setToolTip(tr("Save these expression values as a preset file (Ctrl+Shift+S)"));
+  save->setToolTip(tr("Save these expression values as an expression preset file (Ctrl+Shift+S)"));
   save->setShortcut(QKeySequence(Qt::CTRL | Qt::SHIFT | Qt::Key_S));
   connect(save, &QPushButton::clicked, this, &ExpressionPanel::saveRequested);
   auto* load = new QPushButton(tr("L&oad..."), this);

@@ -25,7 +25,8 @@ class QSpinBox;
 
 namespace avatar::ui {
 
-// Portrait thumbnail with the detection/landmark overlay, preset choice and Reconstruct.
+// Portrait thumbnail with the detection/landmark overlay, network size and quality level
+// choices and Reconstruct.
 class SourcePanel : public QWidget {
   Q_OBJECT
 
@@ -34,12 +35,15 @@ class SourcePanel : public QWidget {
   // Shows `portrait` with the overlay (detections and landmarks in portrait pixels).
   void setPortrait(const QImage& portrait, const SourceOverlay& overlay);
   void setStatus(const QString& text);
-  QString preset() const;
-  void setPreset(const QString& preset);
-  // The quality preset chosen in the ladder (a QualityLadder() name; persisted).
+  // The network size (model config) of the random-weight network: "lite" or "paper" (persisted as
+  // "source/config"; settings of 0.1 kept it as "source/preset", read when the new key is absent).
+  QString config() const;
+  void setConfig(const QString& config);
+  QComboBox* configBox() const { return config_; }
+  // The quality level chosen in the ladder (a QualityLadder() name; persisted).
   QString quality() const;
   void setQuality(const QString& name);
-  // Shows each preset's estimated reconstruct and frame time beside its name ("not measured
+  // Shows each level's estimated reconstruct and frame time beside its name ("not measured
   // yet" for nullopt).
   void setQualityEstimates(const std::optional<QualityEstimates>& estimates);
   QComboBox* qualityBox() const { return quality_; }
@@ -52,14 +56,14 @@ class SourcePanel : public QWidget {
 
  signals:
   void reconstructRequested();
-  void presetChanged(const QString& preset);
+  void configChanged(const QString& config);
   void qualityChanged(const QString& quality);
 
  private:
   void redraw();
   QLabel* thumbnail_ = nullptr;
   QLabel* status_ = nullptr;
-  QComboBox* preset_ = nullptr;
+  QComboBox* config_ = nullptr;
   QComboBox* quality_ = nullptr;
   QCheckBox* random_weights_ = nullptr;
   QCheckBox* morphable_preview_ = nullptr;

@@ -5,7 +5,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/util/error.h"
 
 namespace avatar::face {

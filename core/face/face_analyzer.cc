@@ -14,7 +14,7 @@
 #include "core/face/blazeface.h"
 #include "core/face/face_geometry.h"
 #include "core/face/identity_net.h"
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/io/data_paths.h"
 #include "core/io/tfjs_graph.h"
 #include "core/util/error.h"

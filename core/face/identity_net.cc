@@ -11,7 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/face/face_geometry.h"
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/io/data_paths.h"
 #include "core/util/error.h"
 

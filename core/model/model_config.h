@@ -2,17 +2,17 @@
 // Sizes of the GOHA network. One struct describes every module; it is stored in every
 // checkpoint and avatar file so that a file is always loaded into the network it was made with.
 //
-// Presets:
+// Named configs (the network sizes; --config NAME):
 //   paper : every size as published (512 input, SegFormer MiT-b0, planes 3x32x256x256, render
 //           128x128 with 48+48 samples, GFPGAN-v1-clean-style SR to 512 with channel multiplier 2).
 //   lite  : same encoders at a 256 input (planes 3x32x128x128), render 64x64 with 24+24
 //           samples and a narrower SR to 256: the render is the part an orbiting preview repeats,
 //           and `bench render` measured ~0.1 s for this size on 2 cores (docs/PERFORMANCE.md).
 //   tiny  : a few thousand parameters per module, for tests only.
-// All three presets use the mit_b0 encoder; `encoder` = mobilenet_v2 swaps in the pretrained
+// All three configs use the mit_b0 encoder; `encoder` = mobilenet_v2 swaps in the pretrained
 // MobileNetV2 (see the field).
 //
-// Ablation variants (issue 14, the paper's Table 4; every preset has the full design):
+// Ablation variants (issue 14, the paper's Table 4; every named config has the full design):
 //   appearance_branch false   : no appearance planes: T_p = 0, the output is R(T_c + T_e).
 //   expression_model "bases"  : T_e = sum_k (beta_k / std_k) B_k with learned tri-plane bases
 //                               B_k instead of E_e over I_exp (expression_coefficients = K).
@@ -24,7 +24,7 @@
 namespace avatar {
 
 struct ModelConfig {
-  // Preset name (paper, lite, tiny or custom); informative only.
+  // Config name (paper, lite, tiny or custom); informative only.
   std::string name = "paper";
   // Side of the square encoder input (source image, canonical render, I_exp).
   int image_size = 512;
@@ -88,7 +88,7 @@ struct ModelConfig {
 
   template <typename V>
   void Visit(V&& v) {
-    v("name", name, "Preset name");
+    v("name", name, "Config name");
     v("image_size", image_size, "Encoder input side");
     v("encoder", encoder, "Encoder backbone: mit_b0 or mobilenet_v2");
     v("encoder_widths", encoder_widths, "MiT stage widths");

@@ -5,23 +5,11 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/morphable/rasterizer.h"
+#include "core/morphable/texture.h"
 #include "core/util/error.h"
 
 namespace avatar::morphable {
 
-namespace {
-
-cv::Vec3f SampleTexture(const cv::Mat& tex, double u, double v) {
-  const double fx = std::clamp(u * tex.cols - 0.5, 0.0, tex.cols - 1.0);
-  const double fy = std::clamp(v * tex.rows - 0.5, 0.0, tex.rows - 1.0);
-  const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
-  const int x1 = std::min(x0 + 1, tex.cols - 1), y1 = std::min(y0 + 1, tex.rows - 1);
-  const float ax = static_cast<float>(fx - x0), ay = static_cast<float>(fy - y0);
-  return (1 - ay) * ((1 - ax) * tex.at<cv::Vec3f>(y0, x0) + ax * tex.at<cv::Vec3f>(y0, x1)) +
-         ay * ((1 - ax) * tex.at<cv::Vec3f>(y1, x0) + ax * tex.at<cv::Vec3f>(y1, x1));
-}
-
-}  // namespace
 
 void RenderOptions::Validate() const {
   AVATAR_CHECK_OPTION(supersample >= 1 && supersample <= 8) << "--supersample must be in 1..8, got " << supersample;
@@ -65,7 +53,9 @@ RenderResult RenderMesh(const std::vector<cv::Point3f>& world, const Topology& t
       cv::Vec3f colour;
       if (use_uv) {
         const cv::Point2f uv = b[0] * topo.uv[f[0]] + b[1] * topo.uv[f[1]] + b[2] * topo.uv[f[2]];
-        colour = SampleTexture(texture.uv_image, uv.x, uv.y);
+        const double u = uv.x, v = uv.y;  // texel centres at (i + 0.5) / size
+        colour = SampleBilinear<cv::Vec3f>(texture.uv_image, u * texture.uv_image.cols - 0.5,
+                                           v * texture.uv_image.rows - 0.5);
       } else {
         colour = b[0] * texture.vertex_colors[f[0]] + b[1] * texture.vertex_colors[f[1]] +
                  b[2] * texture.vertex_colors[f[2]];

@@ -11,20 +11,11 @@ namespace avatar::morphable {
 
 namespace {
 
-cv::Vec3f SampleBilinear(const cv::Mat& bgr8, double x, double y) {
-  // Pixel i's centre is at i + 0.5.
-  const double fx = std::clamp(x - 0.5, 0.0, bgr8.cols - 1.0);
-  const double fy = std::clamp(y - 0.5, 0.0, bgr8.rows - 1.0);
-  const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
-  const int x1 = std::min(x0 + 1, bgr8.cols - 1), y1 = std::min(y0 + 1, bgr8.rows - 1);
-  const double ax = fx - x0, ay = fy - y0;
-  cv::Vec3f out;
-  for (int c = 0; c < 3; ++c) {
-    const double v = (1 - ay) * ((1 - ax) * bgr8.at<cv::Vec3b>(y0, x0)[c] + ax * bgr8.at<cv::Vec3b>(y0, x1)[c]) +
-                     ay * ((1 - ax) * bgr8.at<cv::Vec3b>(y1, x0)[c] + ax * bgr8.at<cv::Vec3b>(y1, x1)[c]);
-    out[c] = static_cast<float>(v / 255.0);
-  }
-  return out;
+// The colour in [0,1] at pixel position (x, y) of `bgr64` (the photo as CV_64FC3 0..255; pixel
+// i's centre is at i + 0.5).
+cv::Vec3f PhotoColour(const cv::Mat& bgr64, double x, double y) {
+  const cv::Vec3d v = SampleBilinear<cv::Vec3d>(bgr64, x - 0.5, y - 0.5);
+  return {static_cast<float>(v[0] / 255.0), static_cast<float>(v[1] / 255.0), static_cast<float>(v[2] / 255.0)};
 }
 
 // Fills unknown texels from known ones by a push-pull pyramid (smooth, no extra dependency).
@@ -99,6 +90,8 @@ Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const c
     screen[i] = {px.x, px.y, cam_pts[i][2]};
   }
   const RasterBuffers source = Rasterize(screen, topo.triangles, bgr.size());
+  cv::Mat bgr64;
+  bgr.convertTo(bgr64, CV_64FC3);
   const double tol = options.depth_tolerance * render::kCameraRadius;
   auto visible = [&](const cv::Vec3d& p, cv::Point2d* px) {
     if (p[2] <= 1e-6) return false;
@@ -116,7 +109,7 @@ Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const c
     cv::Point2d px;
     if (visible(cam_pts[i], &px)) {
       vis[i] = true;
-      tex.vertex_colors[i] = SampleBilinear(bgr, px.x, px.y);
+      tex.vertex_colors[i] = PhotoColour(bgr64, px.x, px.y);
       sum += cv::Vec3d(tex.vertex_colors[i]);
       ++count;
     }
@@ -143,7 +136,7 @@ Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const c
       const cv::Vec3d p = b[0] * cam_pts[f[0]] + b[1] * cam_pts[f[1]] + b[2] * cam_pts[f[2]];
       cv::Point2d px;
       if (visible(p, &px)) {
-        colour.at<cv::Vec3f>(y, x) = SampleBilinear(bgr, px.x, px.y);
+        colour.at<cv::Vec3f>(y, x) = PhotoColour(bgr64, px.x, px.y);
         seen.at<uchar>(y, x) = 255;
       }
     }

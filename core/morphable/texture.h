@@ -3,6 +3,7 @@
 // from the part of the face visible in the fitted view (hidden texels are inpainted), plus
 // per-vertex colours.
 
+#include <algorithm>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -11,6 +12,22 @@
 #include "core/morphable/morphable_model.h"
 
 namespace avatar::morphable {
+
+// Bilinear interpolation of `image` (pixel type T: cv::Vec3f, cv::Vec2f, cv::Vec3d, float, ...)
+// at the continuous position (fx, fy), texel centres at integers, clamped to the border; weights
+// and sums in T's channel type. The one texture sampler: the mesh renderer, the texture sampling
+// of a photo and the data factory's synthetic heads all read images through it.
+template <typename T>
+T SampleBilinear(const cv::Mat& image, double fx, double fy) {
+  using W = typename cv::DataType<T>::channel_type;
+  fx = std::clamp(fx, 0.0, image.cols - 1.0);
+  fy = std::clamp(fy, 0.0, image.rows - 1.0);
+  const int x0 = static_cast<int>(fx), y0 = static_cast<int>(fy);
+  const int x1 = std::min(x0 + 1, image.cols - 1), y1 = std::min(y0 + 1, image.rows - 1);
+  const W ax = static_cast<W>(fx - x0), ay = static_cast<W>(fy - y0);
+  return (1 - ay) * ((1 - ax) * image.at<T>(y0, x0) + ax * image.at<T>(y0, x1)) +
+         ay * ((1 - ax) * image.at<T>(y1, x0) + ax * image.at<T>(y1, x1));
+}
 
 struct Texture {
   cv::Mat uv_image;                      // [T,T] CV_32FC3 BGR in [0,1] (may be empty: use vertex colours)

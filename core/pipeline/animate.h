@@ -91,7 +91,7 @@ struct AnimateOptions {
   bool audio = true;
   // Relative/absolute transfer, neutral frame, smoothing.
   DrivingOptions driving;
-  // Which renderer: preset, random weights, data folder.
+  // Which renderer: network size (config), random weights, data folder.
   BackendOptions backend;
 
   template <typename V>

@@ -1,34 +1,14 @@
 #include "core/pipeline/avatar_file.h"
 
-#include <map>
-#include <mutex>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
 #include "core/model/checkpoint.h"
+#include "core/pipeline/avatar_file_info.h"
 #include "core/util/error.h"
 
 namespace avatar {
-namespace {
-
-std::map<std::string, ExpressionSourceLoader>& Loaders() {
-  static std::map<std::string, ExpressionSourceLoader> loaders;
-  return loaders;
-}
-std::mutex& LoadersMutex() {
-  static std::mutex m;
-  return m;
-}
-
-}  // namespace
-
-bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader) {
-  std::lock_guard<std::mutex> lock(LoadersMutex());
-  Loaders()[kind] = loader;
-  return true;
-}
-
 void WriteAvatarFile(const AvatarState& s, const std::filesystem::path& path) {
   TensorArchive archive;
   archive.kind = "goha-avatar";
@@ -101,12 +81,7 @@ std::shared_ptr<AvatarState> ReadAvatarFile(const std::filesystem::path& path, c
           .clone();
   const torch::Tensor& bytes = archive.Get("avatar.expression_source", file);
   if (!kind.empty()) {
-    ExpressionSourceLoader loader = nullptr;
-    {
-      std::lock_guard<std::mutex> lock(LoadersMutex());
-      auto it = Loaders().find(kind);
-      if (it != Loaders().end()) loader = it->second;
-    }
+    const ExpressionSourceLoader loader = FindExpressionSourceLoader(kind);
     if (loader == nullptr) throw ModelLoad(file + ": unknown expression source '" + kind + "' in this build");
     try {
       state->expressions =

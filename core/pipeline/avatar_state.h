@@ -4,6 +4,7 @@
 // session (session.cc), the avatar file format (avatar_file.cc) and SessionAccess.
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -12,7 +13,7 @@
 #include <torch/torch.h>
 
 #include "core/model/goha_model.h"
-#include "core/pipeline/session.h"
+#include "core/pipeline/source_fit.h"
 
 namespace avatar {
 
@@ -30,6 +31,9 @@ struct AvatarState {
 };
 
 // A fresh process-wide avatar id (for AvatarState::id).
-uint64_t NextAvatarId();
+inline uint64_t NextAvatarId() {
+  static std::atomic<uint64_t> next{1};
+  return next++;
+}
 
 }  // namespace avatar

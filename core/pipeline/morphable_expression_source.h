@@ -1,7 +1,7 @@
 #pragma once
 // I_exp for the session from the morphable model: the source's identity (alpha, scale) and
 // texture with a target expression at the fixed frontal camera C_front, black background
-// (morphable::RenderExpressionImage), as the training data renders it (dataset_build.cc: the
+// (morphable::RenderExpressionImage), as the training data renders it (dataset_build_items.cc: the
 // target frame's own beta). The target beta is ExpressionBeta of the Expression: {} is the
 // portrait's fitted expression, driver coefficients pass through unchanged.
 // Kind "morphable": avatar files store the fit and the texture; loading needs the same
@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "core/morphable/morphable.h"
-#include "core/pipeline/session.h"
+#include "core/pipeline/source_fit.h"
 
 namespace avatar {
 

@@ -20,10 +20,11 @@
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/model_config.h"
-#include "core/pipeline/benchmarks.h"
+#include "core/pipeline/probe.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
+#include "core/util/measure.h"
 #include "core/util/options.h"
 #include "core/util/threads.h"
 #include "core/util/timer.h"
@@ -116,35 +117,6 @@ bool Has(const json& entry, const char* key, const json& want) {
   return it != entry.end() && *it == want;
 }
 
-// A synthetic aligned portrait: a face-like oval with eyes and mouth on black.
-cv::Mat ProbePortrait() {
-  cv::Mat img = cv::Mat::zeros(512, 512, CV_8UC3);
-  cv::ellipse(img, cv::Point(256, 270), cv::Size(150, 190), 0, 0, 360, cv::Scalar(120, 150, 200), cv::FILLED);
-  cv::circle(img, cv::Point(200, 230), 18, cv::Scalar(40, 40, 40), cv::FILLED);
-  cv::circle(img, cv::Point(312, 230), 18, cv::Scalar(40, 40, 40), cv::FILLED);
-  cv::ellipse(img, cv::Point(256, 360), cv::Size(60, 18), 0, 0, 360, cv::Scalar(60, 60, 170), cv::FILLED);
-  return img;
-}
-
-// I_exp of the probe: the portrait itself, whatever the expression (only timing matters).
-class ProbeExpressionSource : public ExpressionImageSource {
- public:
-  // `coefficients`: the zero expression's beta for a network with expression bases (empty: none).
-  explicit ProbeExpressionSource(std::vector<float> coefficients) : coefficients_(std::move(coefficients)) {}
-  cv::Mat Render(const Expression& /*expression*/, int size) const override {
-    cv::Mat out;
-    cv::resize(ProbePortrait(), out, cv::Size(size, size), 0, 0, cv::INTER_AREA);
-    return out;
-  }
-  std::vector<float> Coefficients(const Expression& /*expression*/) const override { return coefficients_; }
-  std::vector<std::string> ControlNames() const override { return {}; }
-  std::string Kind() const override { return "quality-probe"; }
-  std::string Serialize() const override { return {}; }
-
- private:
-  std::vector<float> coefficients_;
-};
-
 json EntryJson(const QualityEstimates& e) {
   json j;
   j["model_id"] = e.model_id;
@@ -163,11 +135,12 @@ json EntryJson(const QualityEstimates& e) {
     const auto time = fs::last_write_time(e.checkpoint_path, ec);
     if (!ec) j["checkpoint_mtime"] = static_cast<int64_t>(time.time_since_epoch().count());
   }
-  json presets = json::object();
-  for (const auto& p : e.presets) {
-    presets[p.preset] = {{"reconstruct_seconds", p.reconstruct_seconds}, {"frame_seconds", p.frame_seconds}};
+  // The stored key keeps its first name, "presets" (the cache format is unchanged).
+  json levels = json::object();
+  for (const auto& p : e.levels) {
+    levels[p.level] = {{"reconstruct_seconds", p.reconstruct_seconds}, {"frame_seconds", p.frame_seconds}};
   }
-  j["presets"] = presets;
+  j["presets"] = levels;
   return j;
 }
 
@@ -189,15 +162,15 @@ std::optional<QualityEstimates> EntryFromJson(const json& j, std::string* why) {
     e.one_shot_seconds = j.at("one_shot_seconds").get<double>();
     e.refine_setup_seconds = j.at("refine_setup_seconds").get<double>();
     e.refine_step_seconds = j.at("refine_step_seconds").get<double>();
-    const json& presets = j.at("presets");
-    if (!presets.is_object()) return fail("'presets' is not an object");
+    const json& levels = j.at("presets");  // the quality levels' estimates (stored key, see EntryJson)
+    if (!levels.is_object()) return fail("'presets' is not an object");
     for (const auto& p : QualityLadder()) {
-      if (!presets.contains(p.name)) return fail("no estimate of preset '" + p.name + "'");
+      if (!levels.contains(p.name)) return fail("no estimate of quality level '" + p.name + "'");
       QualityEstimate q;
-      q.preset = p.name;
-      q.reconstruct_seconds = presets.at(p.name).at("reconstruct_seconds").get<double>();
-      q.frame_seconds = presets.at(p.name).at("frame_seconds").get<double>();
-      e.presets.push_back(q);
+      q.level = p.name;
+      q.reconstruct_seconds = levels.at(p.name).at("reconstruct_seconds").get<double>();
+      q.frame_seconds = levels.at(p.name).at("frame_seconds").get<double>();
+      e.levels.push_back(q);
     }
   } catch (const json::exception& ex) {
     return fail(std::string("malformed entry: ") + ex.what());
@@ -236,20 +209,20 @@ json ReadEntries(const fs::path& cache, std::string* why) {
 
 }  // namespace
 
-void QualityPreset::Validate() const {
-  AVATAR_CHECK_OPTION(!name.empty()) << "a quality preset needs a name";
+void QualityLevel::Validate() const {
+  AVATAR_CHECK_OPTION(!name.empty()) << "a quality level needs a name";
   AVATAR_CHECK_OPTION(std::isfinite(render_scale) && render_scale >= 0.1 && render_scale <= 4.0)
-      << "quality preset '" << name << "': render_scale must be within 0.1..4, got " << render_scale;
+      << "quality level '" << name << "': render_scale must be within 0.1..4, got " << render_scale;
   AVATAR_CHECK_OPTION(std::isfinite(sample_scale) && sample_scale >= 0.1 && sample_scale <= 4.0)
-      << "quality preset '" << name << "': sample_scale must be within 0.1..4, got " << sample_scale;
+      << "quality level '" << name << "': sample_scale must be within 0.1..4, got " << sample_scale;
   AVATAR_CHECK_OPTION(refine_steps >= 0 && refine_steps <= 100000)
-      << "quality preset '" << name << "': refine_steps must be within 0..100000, got " << refine_steps;
+      << "quality level '" << name << "': refine_steps must be within 0..100000, got " << refine_steps;
   AVATAR_CHECK_OPTION(std::isfinite(refine_seconds) && refine_seconds >= 0.0)
-      << "quality preset '" << name << "': refine_seconds must be >= 0, got " << refine_seconds;
+      << "quality level '" << name << "': refine_seconds must be >= 0, got " << refine_seconds;
   Refine().Validate();
 }
 
-RenderSettings QualityPreset::Render(const ModelInfo& model) const {
+RenderSettings QualityLevel::Render(const ModelInfo& model) const {
   const ModelRender m = RenderOf(model);
   RenderSettings s;
   if (m.render_size > 0) s.resolution = std::min(1024, Scaled(m.render_size, render_scale, 8));
@@ -259,14 +232,14 @@ RenderSettings QualityPreset::Render(const ModelInfo& model) const {
   return s;
 }
 
-RefineOptions QualityPreset::Refine(const RefineOptions& base) const {
+RefineOptions QualityLevel::Refine(const RefineOptions& base) const {
   RefineOptions r = base;
   r.steps = refine_steps;
   r.seconds = refine_seconds;
   return r;
 }
 
-double QualityPreset::FrameCost(const ModelInfo& model) const {
+double QualityLevel::FrameCost(const ModelInfo& model) const {
   const ModelRender m = RenderOf(model);
   const RenderSettings s = Render(model);
   const double side = s.resolution > 0 ? s.resolution : m.render_size;
@@ -275,7 +248,7 @@ double QualityPreset::FrameCost(const ModelInfo& model) const {
   return side * side * samples;
 }
 
-std::string QualityPreset::Describe(const ModelInfo& model) const {
+std::string QualityLevel::Describe(const ModelInfo& model) const {
   const ModelRender m = RenderOf(model);
   const RenderSettings s = Render(model);
   std::ostringstream out;
@@ -296,11 +269,11 @@ std::string QualityPreset::Describe(const ModelInfo& model) const {
   return out.str();
 }
 
-const std::vector<QualityPreset>& QualityLadder() {
-  static const std::vector<QualityPreset> ladder = [] {
-    std::vector<QualityPreset> l;
+const std::vector<QualityLevel>& QualityLadder() {
+  static const std::vector<QualityLevel> ladder = [] {
+    std::vector<QualityLevel> l;
     auto add = [&](const char* name, const char* summary, double render, double samples, bool sr, int steps) {
-      QualityPreset p;
+      QualityLevel p;
       p.name = name;
       p.summary = summary;
       p.render_scale = render;
@@ -322,22 +295,22 @@ const std::vector<QualityPreset>& QualityLadder() {
   return ladder;
 }
 
-std::string QualityPresetNames() {
+std::string QualityLevelNames() {
   std::string names;
   for (const auto& p : QualityLadder()) names += (names.empty() ? "" : ", ") + p.name;
   return names;
 }
 
-const QualityPreset& QualityPresetByName(const std::string& name) {
+const QualityLevel& QualityLevelByName(const std::string& name) {
   for (const auto& p : QualityLadder()) {
     if (p.name == name) return p;
   }
-  throw InvalidOptions("unknown quality preset '" + name + "' (" + QualityPresetNames() + ")");
+  throw InvalidOptions("unknown quality level '" + name + "' (" + QualityLevelNames() + ")");
 }
 
 std::string QualityLadderFingerprint() {
   json j = json::array();
-  for (QualityPreset p : QualityLadder()) {
+  for (QualityLevel p : QualityLadder()) {
     p.summary.clear();  // wording changes do not change the times
     j.push_back(options::ToJson(p));
   }
@@ -352,9 +325,9 @@ std::string QualityLadderFingerprint() {
   return buf;
 }
 
-const QualityEstimate* QualityEstimates::Find(const std::string& preset) const {
-  for (const auto& p : presets) {
-    if (p.preset == preset) return &p;
+const QualityEstimate* QualityEstimates::Find(const std::string& level) const {
+  for (const auto& p : levels) {
+    if (p.level == level) return &p;
   }
   return nullptr;
 }
@@ -397,20 +370,13 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
   e.ladder = QualityLadderFingerprint();
 
   const std::string stage = "measure quality ladder";
-  const face::AlignedPortrait portrait = PortraitFromAlignedImage(ProbePortrait());
-  SourceFit fit;
-  std::vector<float> probe_beta;
+  const face::AlignedPortrait portrait = ProbePortrait();
+  int expression_coefficients = 0;
   if (!info.config_json.empty()) {
     const ModelConfig config = ModelConfigFromJson(info.config_json);
-    if (config.expression_bases()) probe_beta.assign(config.expression_coefficients, 0.0f);
+    if (config.expression_bases()) expression_coefficients = config.expression_coefficients;
   }
-  fit.expressions = std::make_shared<ProbeExpressionSource>(std::move(probe_beta));
-  {
-    // The frontal camera C_front with the default intrinsics.
-    torch::InferenceMode inference;
-    const torch::Tensor label = render::LabelsFromCameras(render::FrontalCameras(1)).reshape({25}).contiguous();
-    std::copy(label.data_ptr<float>(), label.data_ptr<float>() + 25, fit.camera.begin());
-  }
+  const SourceFit fit = ProbeFit(expression_coefficients);
   // Progress: reconstruction 0..0.2, refinement 0.2..0.6, frames 0.6..1.
   ctx.Report(stage, 0.0, "one-shot reconstruction");
   Avatar avatar;
@@ -441,14 +407,14 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
 
   const auto& ladder = QualityLadder();
   for (size_t i = 0; i < ladder.size(); ++i) {
-    const QualityPreset& p = ladder[i];
+    const QualityLevel& p = ladder[i];
     ctx.Report(stage, 0.6 + 0.4 * static_cast<double>(i) / static_cast<double>(ladder.size()), "frames: " + p.name);
     const RenderSettings settings = p.Render(info);
     ctx.ThrowIfCancelled();
     const double frame =
         MedianSeconds(repeats, ctx, [&] { session.Animate(avatar, Expression{}, fit.camera, settings); });
     QualityEstimate q;
-    q.preset = p.name;
+    q.level = p.name;
     q.frame_seconds = std::max(1e-6, frame);
     const RefineOptions ro = p.Refine(refine_base);
     double refine = 0.0;
@@ -458,7 +424,7 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
       if (ro.seconds > 0) refine = ro.steps > 0 ? std::min(refine, ro.seconds) : ro.seconds;
     }
     q.reconstruct_seconds = std::max(1e-6, e.one_shot_seconds + refine);
-    e.presets.push_back(q);
+    e.levels.push_back(q);
   }
   e.measured_at = UtcNow();
   ctx.Report(stage, 1.0, "done");
@@ -579,7 +545,7 @@ std::string QualityLadderHelp(const SessionOptions& model) {
     const fs::path checkpoint = ResolveCheckpoint(model, &origin);
     if (checkpoint.empty()) {
       model_name = "random weights (config " + model.config + ")";
-      estimates = ReadCachedQualityEstimates(cache, "random:" + model.config + ":" + std::to_string(model.seed), threads);
+      estimates = ReadCachedQualityEstimates(cache, RandomModelId(model.config, model.seed), threads);
     } else {
       model_name = origin + " model " + checkpoint.filename().string();
       estimates = ReadCachedQualityEstimatesForCheckpoint(cache, checkpoint, threads);
@@ -587,7 +553,7 @@ std::string QualityLadderHelp(const SessionOptions& model) {
   } catch (const std::exception&) {
     // Help texts never fail: the ladder is listed without estimates.
   }
-  out << "Quality presets (--quality NAME), estimates for the " << model_name << " at " << threads
+  out << "Quality levels (--quality NAME), estimates for the " << model_name << " at " << threads
       << " threads on this machine";
   if (!cache.empty()) out << " (measured at first use, cached in " << cache.string() << ")";
   out << ":\n";

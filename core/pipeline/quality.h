@@ -1,18 +1,18 @@
 #pragma once
-// The quality ladder: named presets that trade waiting for accuracy, from `instant` to `best`,
-// plus `paper` (the published setting). One preset = how a frame is rendered (render size and
+// The quality ladder: named quality levels that trade waiting for accuracy, from `instant` to
+// `best`, plus `paper` (the published setting). One level = how a frame is rendered (render size and
 // samples per ray relative to the model's, super-resolution on or off) and how much per-portrait
 // refinement (refine.h) follows the one-shot reconstruction. The CLI (`reconstruct --quality`,
 // `inspect`, `bench accuracy`) and the studio use this one table.
 //
-// Time estimates of every preset are measured on this machine, the first time a model is used
+// Time estimates of every level are measured on this machine, the first time a model is used
 // with the ladder, and cached as JSON (QualityCachePath) keyed by the model id and the thread
 // count. An unreadable, corrupt or foreign cache is measured again, never trusted or fatal.
 //
 // Estimates cover the network: reconstruct seconds = the one-shot forward (T_c, T_p) plus the
-// preset's refinement steps (measured seconds per step x steps); frame seconds = one
-// Session::Animate at the preset's render settings (new view, cached expression). Face analysis
-// and the morphable fit of the photo come on top (the same for every preset).
+// level's refinement steps (measured seconds per step x steps); frame seconds = one
+// Session::Animate at the level's render settings (new view, cached expression). Face analysis
+// and the morphable fit of the photo come on top (the same for every level).
 
 #include <filesystem>
 #include <optional>
@@ -25,7 +25,7 @@
 
 namespace avatar {
 
-struct QualityPreset {
+struct QualityLevel {
   // Name used by --quality and the studio.
   std::string name;
   // One line for help texts.
@@ -43,20 +43,20 @@ struct QualityPreset {
 
   template <typename V>
   void Visit(V&& v) {
-    v("name", name, "Preset name");
-    v("summary", summary, "What the preset is for");
+    v("name", name, "Quality level name");
+    v("summary", summary, "What the level is for");
     v("render_scale", render_scale, "Render side as a fraction of the model's render size");
     v("sample_scale", sample_scale, "Samples per ray as a fraction of the model's");
     v("super_resolution", super_resolution, "Output at the SR size");
     v("refine_steps", refine_steps, "Refinement steps after the one-shot reconstruction");
     v("refine_seconds", refine_seconds, "Refinement time budget in seconds (0 = none)");
   }
-  // Throws InvalidOptions naming the preset.
+  // Throws InvalidOptions naming the level.
   void Validate() const;
 
-  // The render settings of this preset for a model (its config_json gives render size and samples).
+  // The render settings of this level for a model (its config_json gives render size and samples).
   RenderSettings Render(const ModelInfo& model) const;
-  // `base` (loss weights, learning rate, data folder) with this preset's steps and budget.
+  // `base` (loss weights, learning rate, data folder) with this level's steps and budget.
   RefineOptions Refine(const RefineOptions& base = {}) const;
   // Rays x samples per ray of one frame for a model (the ordering key of the ladder).
   double FrameCost(const ModelInfo& model) const;
@@ -65,18 +65,18 @@ struct QualityPreset {
 };
 
 // instant, preview, standard, fine, best (cheapest to most accurate), then paper.
-const std::vector<QualityPreset>& QualityLadder();
+const std::vector<QualityLevel>& QualityLadder();
 // Names in ladder order ("instant, preview, ...") for messages.
-std::string QualityPresetNames();
-// The preset called `name`; throws InvalidOptions listing the names.
-const QualityPreset& QualityPresetByName(const std::string& name);
+std::string QualityLevelNames();
+// The level called `name`; throws InvalidOptions listing the names.
+const QualityLevel& QualityLevelByName(const std::string& name);
 // A short fingerprint of the ladder's definitions (a changed ladder is measured again).
 std::string QualityLadderFingerprint();
 
 struct QualityEstimate {
-  std::string preset;
+  std::string level;  // QualityLevel::name
   double reconstruct_seconds = 0.0;  // one-shot forward + refinement
-  double frame_seconds = 0.0;        // one frame at the preset's render settings
+  double frame_seconds = 0.0;        // one frame at the level's render settings
 };
 
 // The estimates of one model on this machine at one thread count.
@@ -90,11 +90,11 @@ struct QualityEstimates {
   double one_shot_seconds = 0.0;      // T_c + T_p forward (median)
   double refine_setup_seconds = 0.0;  // a refinement's fixed cost (targets, first and last evaluation)
   double refine_step_seconds = 0.0;   // one refinement step
-  std::vector<QualityEstimate> presets;  // ladder order
+  std::vector<QualityEstimate> levels;  // ladder order
 
-  // The preset's estimate, or nullptr.
-  const QualityEstimate* Find(const std::string& preset) const;
-  // True when every ladder preset has finite positive times and the fingerprint is current.
+  // The level's estimate, or nullptr.
+  const QualityEstimate* Find(const std::string& level) const;
+  // True when every ladder level has finite positive times and the fingerprint is current.
   bool Complete() const;
 };
 
@@ -111,7 +111,7 @@ std::filesystem::path QualityCachePath(const std::string& data_dir = {});
 // Measures the ladder with `session` on a synthetic portrait: the one-shot reconstruction (a
 // warm-up, then the median of `repeats`), refinement with `refine_base`'s weights (a warm-up run of
 // one step, then runs of 1 and 1 + refine_probe_steps steps: their difference gives the seconds per
-// step, the rest the fixed cost), and per preset a warm-up frame and the median of `repeats` frames.
+// step, the rest the fixed cost), and per level a warm-up frame and the median of `repeats` frames.
 // Reports progress ("measure quality ladder"). Throws Cancelled; ModelLoad / MissingData from the
 // refinement's perceptual weights when refine_base asks for them and they are not installed.
 QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOptions& refine_base, RunContext& ctx,

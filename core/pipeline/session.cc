@@ -17,8 +17,8 @@
 #include "core/morphable/camera_label.h"
 #include "core/pipeline/avatar_file.h"
 #include "core/pipeline/avatar_state.h"
-#include "core/pipeline/image_tensor.h"
-#include "core/pipeline/session_access.h"
+#include "core/io/image_tensor.h"
+#include "core/pipeline/session_impl.h"
 #include "core/pipeline/source_analysis.h"
 #include "core/render/camera.h"
 #include "core/util/error.h"
@@ -38,25 +38,20 @@ render::Cameras CamerasFromLabel(const std::array<float, 25>& label) {
 
 }  // namespace
 
-uint64_t NextAvatarId() {
-  static std::atomic<uint64_t> next{1};
-  return next++;
+RenderMode RenderModeFromName(const std::string& name) {
+  if (name == "preview") return RenderMode::kPreview;
+  if (name == "standard") return RenderMode::kStandard;
+  if (name == "final") return RenderMode::kFinal;
+  throw InvalidOptions("unknown render mode '" + name + "' (preview, standard or final)");
 }
 
-Preset PresetFromName(const std::string& name) {
-  if (name == "preview") return Preset::kPreview;
-  if (name == "standard") return Preset::kStandard;
-  if (name == "final") return Preset::kFinal;
-  throw InvalidOptions("unknown preset '" + name + "' (preview, standard or final)");
-}
-
-const char* PresetName(Preset preset) {
-  switch (preset) {
-    case Preset::kPreview:
+const char* RenderModeName(RenderMode mode) {
+  switch (mode) {
+    case RenderMode::kPreview:
       return "preview";
-    case Preset::kStandard:
+    case RenderMode::kStandard:
       return "standard";
-    case Preset::kFinal:
+    case RenderMode::kFinal:
       return "final";
   }
   return "?";
@@ -92,78 +87,6 @@ std::array<float, 25> Avatar::SourceCamera() const { return state_ ? state_->cam
 
 std::string Avatar::RefinementInfo() const { return state_ ? state_->refinement : std::string(); }
 
-struct Session::Impl {
-  SessionOptions options;
-  mutable GohaModel model{nullptr};  // forward passes only read parameters
-  ModelInfo info;
-  // Summed planes of one (avatar, expression) and their occupancy grid, built (once, under
-  // `grid_mutex`) at the second frame that skips empty space with these planes: the first frame
-  // of a new expression never waits for a grid, so a slider drag that changes the expression
-  // every frame pays nothing for it, while an orbit or a held expression gets it from its second
-  // frame on.
-  struct CachedPlanes {
-    torch::Tensor planes;
-    std::mutex grid_mutex;
-    int grid_requests = 0;
-    std::shared_ptr<const render::OccupancyGrid> grid;
-  };
-  mutable std::mutex cache_mutex;
-  // LRU of summed planes T_c + T_p + T_e keyed by "<avatar id>|<expression key>". A new
-  // reconstruction or a refinement makes a new avatar id, so its planes and grid are new entries.
-  mutable std::list<std::pair<std::string, std::shared_ptr<CachedPlanes>>> cache;
-  mutable std::atomic<int64_t> expression_images{0};
-
-  // T_e [1,3,C,P,P] of `expression`, the one path of frames and refinement: E_e over the I_exp
-  // that `source` renders, or, for a network with expression bases, the bases mixed by the
-  // expression's morphable coefficients (the beta that I_exp shows).
-  torch::Tensor ExpressionPlanes(const ExpressionImageSource& source, const Expression& expression,
-                                 RunContext* ctx) const {
-    if (model->config().expression_bases()) {
-      const std::vector<float> beta = source.Coefficients(expression);
-      AVATAR_CHECK_INPUT(!beta.empty()) << "the model's expression planes come from morphable expression coefficients "
-                                           "(expression_model bases), and this avatar's expression source ("
-                                        << source.Kind() << ") has none; reconstruct the avatar from a photo";
-      if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
-      return model->ExpressionPlanesFromCoefficients(torch::tensor(beta, torch::kFloat32).unsqueeze(0));
-    }
-    const int s = model->config().image_size;
-    if (ctx != nullptr) ctx->Report("animate", 0.1, "expression image");
-    const cv::Mat exp_image = source.Render(expression, s);
-    ++expression_images;
-    AVATAR_CHECK(exp_image.type() == CV_8UC3 && exp_image.rows == s && exp_image.cols == s)
-        << "expression source returned a " << exp_image.cols << "x" << exp_image.rows << " image, expected " << s;
-    if (ctx != nullptr) ctx->Report("animate", 0.2, "expression planes");
-    return model->ExpressionPlanes(ImageToTensor(exp_image, s, "I_exp"));
-  }
-
-  // The entry's grid, or null at its first request (see CachedPlanes).
-  std::shared_ptr<const render::OccupancyGrid> GridFor(CachedPlanes& entry) const {
-    std::lock_guard<std::mutex> lock(entry.grid_mutex);
-    if (entry.grid == nullptr && ++entry.grid_requests >= 2) entry.grid = model->OccupancyGridFor(entry.planes);
-    return entry.grid;
-  }
-
-  std::shared_ptr<CachedPlanes> PlanesFor(const AvatarState& state, const Expression& expression,
-                                          RunContext* ctx) const {
-    const std::string key = std::to_string(state.id) + "|" + expression.Key();
-    {
-      std::lock_guard<std::mutex> lock(cache_mutex);
-      for (auto it = cache.begin(); it != cache.end(); ++it) {
-        if (it->first == key) {
-          cache.splice(cache.begin(), cache, it);
-          return cache.front().second;
-        }
-      }
-    }
-    AVATAR_CHECK_INPUT(state.expressions != nullptr) << "this avatar has no expression source";
-    auto entry = std::make_shared<CachedPlanes>();
-    entry->planes = state.base + ExpressionPlanes(*state.expressions, expression, ctx);
-    std::lock_guard<std::mutex> lock(cache_mutex);
-    cache.emplace_front(key, entry);
-    while (static_cast<int>(cache.size()) > options.expression_cache) cache.pop_back();
-    return entry;
-  }
-};
 
 std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin) {
   const auto set = [&](const char* o) {
@@ -232,7 +155,7 @@ Session::Session(const SessionOptions& options) : impl_(std::make_unique<Impl>()
     std::lock_guard<std::mutex> lock(g_seed_mutex);
     torch::manual_seed(static_cast<uint64_t>(options.seed));
     impl_->model = GohaModel(ModelConfig::FromName(options.config));
-    impl_->info.model_id = "random:" + options.config + ":" + std::to_string(options.seed);
+    impl_->info.model_id = RandomModelId(options.config, options.seed);
     impl_->info.data_provenance = "random init (untrained)";
   }
   impl_->model->eval();
@@ -293,16 +216,16 @@ Avatar Session::Reconstruct(const cv::Mat& bgr, RunContext& ctx) const {
   return ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
 }
 
-Frame Session::Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, Preset preset,
+Frame Session::Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, RenderMode mode,
                        RunContext* ctx) const {
-  return Animate(avatar, expression, render::CameraForView(view, morphable::FrontalLabel()), preset, ctx);
+  return Animate(avatar, expression, render::CameraForView(view, morphable::FrontalLabel()), mode, ctx);
 }
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
-                       Preset preset, RunContext* ctx) const {
+                       RenderMode mode, RunContext* ctx) const {
   RenderSettings settings;
-  if (preset == Preset::kPreview) settings.resolution = std::min(64, impl_->model->config().render_size);
-  settings.super_resolution = preset == Preset::kFinal;
+  if (mode == RenderMode::kPreview) settings.resolution = std::min(64, impl_->model->config().render_size);
+  settings.super_resolution = mode == RenderMode::kFinal;
   return Animate(avatar, expression, camera, settings, ctx);
 }
 
@@ -407,62 +330,24 @@ void Session::ResetCounters() const {
   impl_->expression_images = 0;
 }
 
-GohaModel SessionAccess::Model(const Session& session) { return session.impl_->model; }
-
-void SessionAccess::CheckAvatar(const Session& session, const Avatar& avatar) {
-  AVATAR_CHECK_INPUT(avatar.valid()) << "refinement needs a reconstructed or loaded avatar";
-  AVATAR_CHECK_INPUT(avatar.state_->model_id == session.impl_->info.model_id)
-      << "this avatar was made with model '" << avatar.state_->model_id << "', the session runs '"
-      << session.impl_->info.model_id << "'; reconstruct it again with this model";
+std::string RandomModelId(const std::string& config, int seed) {
+  return "random:" + config + ":" + std::to_string(seed);
 }
 
-torch::Tensor SessionAccess::Canonical(const Avatar& avatar) {
-  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
-  return avatar.state_->canonical;
-}
-
-torch::Tensor SessionAccess::Appearance(const Avatar& avatar) {
-  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
-  return avatar.state_->appearance;
-}
-
-torch::Tensor SessionAccess::ExpressionPlanes(const Session& session, const Avatar& avatar,
-                                              const Expression& expression) {
-  CheckAvatar(session, avatar);
-  const AvatarState& state = *avatar.state_;
-  if (state.expressions == nullptr) return {};
-  torch::NoGradGuard no_grad;
-  return session.impl_->ExpressionPlanes(*state.expressions, expression, nullptr);
-}
-
-Avatar SessionAccess::WithPlanes(const Avatar& avatar, const torch::Tensor& canonical,
-                                 const torch::Tensor& appearance, const std::string& refinement_json) {
-  AVATAR_CHECK_INPUT(avatar.valid()) << "empty avatar";
-  const AvatarState& old = *avatar.state_;
-  for (const torch::Tensor* t : {&canonical, &appearance}) {
-    AVATAR_CHECK_INPUT(t->defined() && t->sizes() == old.canonical.sizes())
-        << "refined planes have shape " << (t->defined() ? t->sizes() : c10::IntArrayRef{}) << ", expected "
-        << old.canonical.sizes();
-    AVATAR_CHECK_INPUT(torch::isfinite(*t).all().item<bool>()) << "refined planes have non-finite values";
+bool ParseRandomModelId(const std::string& model_id, std::string* config, int* seed) {
+  if (model_id.rfind("random:", 0) != 0) return false;
+  const size_t a = model_id.find(':'), b = model_id.rfind(':');
+  if (b <= a + 1 || b + 1 >= model_id.size()) return false;
+  try {
+    size_t used = 0;
+    const int value = std::stoi(model_id.substr(b + 1), &used);
+    if (used != model_id.size() - b - 1) return false;
+    if (seed != nullptr) *seed = value;
+  } catch (const std::exception&) {
+    return false;
   }
-  auto state = std::make_shared<AvatarState>(old);
-  torch::NoGradGuard no_grad;
-  state->canonical = canonical.detach().to(old.canonical.device(), torch::kFloat32).clone();
-  state->appearance = appearance.detach().to(old.appearance.device(), torch::kFloat32).clone();
-  state->base = state->canonical + state->appearance;
-  state->refinement = refinement_json;
-  state->id = NextAvatarId();
-  Avatar out;
-  out.state_ = state;
-  return out;
-}
-
-torch::Tensor SessionAccess::ImageTensor(const cv::Mat& bgr, int size, const char* what) {
-  return ImageToTensor(bgr, size, what);
-}
-
-torch::Tensor SessionAccess::MaskTensor(const cv::Mat& mask, int size, float fill, const char* what) {
-  return MaskToTensor(mask, size, fill, what);
+  if (config != nullptr) *config = model_id.substr(a + 1, b - a - 1);
+  return true;
 }
 
 face::AlignedPortrait PortraitFromAlignedImage(const cv::Mat& bgr) {

@@ -4,8 +4,8 @@
 //
 //   Session session(options);                      // loads the model (or random weights on request)
 //   Avatar avatar = session.Reconstruct(bgr, ctx); // face analysis, fit, T_c and T_p (cached in the avatar)
-//   Frame f = session.Animate(avatar, {{{"jawOpen", 0.6f}}}, ViewPose{20, -5}, Preset::kPreview);
-//   Frame g = session.Animate(avatar, expression, CameraForView(pose, avatar.SourceCamera()), preset);
+//   Frame f = session.Animate(avatar, {{{"jawOpen", 0.6f}}}, ViewPose{20, -5}, RenderMode::kPreview);
+//   Frame g = session.Animate(avatar, expression, CameraForView(pose, avatar.SourceCamera()), mode);
 //
 // Expressions (expression.h) are morphable expression coefficients relative to the portrait's
 // fitted expression (or absolute); the avatar's expression source renders I_exp from exactly
@@ -15,7 +15,7 @@
 //   - a new view only: no encoder; one volume render of the cached planes T_c + T_p + T_e;
 //   - a new expression: the morphable render I_exp and E_e (T_e), then the render (a network with
 //     expression bases mixes T_e from the expression's morphable coefficients instead: no I_exp);
-//   - super-resolution only for Preset::kFinal.
+//   - super-resolution only for RenderMode::kFinal.
 // Frames are rendered with the inference skips on (RenderSettings, SessionOptions::render_skips):
 // early ray termination, rays missing the box, and empty-space skipping through an occupancy
 // grid built once per cached T_c + T_p + T_e, at the second frame that renders those planes (so
@@ -40,53 +40,25 @@
 #include <opencv2/core.hpp>
 
 #include "core/face/face_types.h"
+#include "core/pipeline/avatar_file_info.h"
 #include "core/pipeline/expression.h"
+#include "core/pipeline/source_fit.h"
 #include "core/render/view_pose.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
 
-// Renders I_exp: the source identity with a target expression at the fixed frontal camera, black
-// background (the morphable model's job; tests plug in synthetic sources).
-class ExpressionImageSource {
- public:
-  virtual ~ExpressionImageSource() = default;
-  // [size,size] CV_8UC3 BGR of the whole Expression (controls, coefficients, absolute). Throws
-  // InvalidInput for unknown control names or a wrong coefficient count. Must be thread-safe.
-  virtual cv::Mat Render(const Expression& expression, int size) const = 0;
-  // Names of the controls Render understands.
-  virtual std::vector<std::string> ControlNames() const = 0;
-  // Length of Expression::coefficients Render understands (0 = coefficients are not supported).
-  virtual int CoefficientCount() const { return 0; }
-  // The morphable expression coefficients beta of the whole Expression, the face Render shows:
-  // what a network with expression bases (ModelConfig expression_model "bases") mixes its T_e
-  // from instead of I_exp. Empty (the default) = this source has no morphable coefficients.
-  // Throws as Render. Must be thread-safe.
-  virtual std::vector<float> Coefficients(const Expression& expression) const {
-    (void)expression;
-    return {};
-  }
-  // Type tag and state, stored in avatar files (see RegisterExpressionSourceLoader).
-  virtual std::string Kind() const = 0;
-  virtual std::string Serialize() const = 0;
-};
-
-// Rebuilds a source from Serialize() bytes when an avatar file is loaded.
-using ExpressionSourceLoader = std::shared_ptr<const ExpressionImageSource> (*)(const std::string& bytes);
-// Registers the loader of a Kind() (call once at start-up, e.g. from a static initialiser). Returns true.
-bool RegisterExpressionSourceLoader(const std::string& kind, ExpressionSourceLoader loader);
-
 // The project's one pose type (core/render/view_pose.h).
 using render::ViewPose;
 
-enum class Preset {
+enum class RenderMode {
   kPreview,   // small render (min(64, render_size)), no super-resolution: interactive
   kStandard,  // the config's render size, no super-resolution
   kFinal,     // the config's render size + super-resolution to sr_size
 };
 // "preview", "standard", "final"; throws InvalidOptions otherwise.
-Preset PresetFromName(const std::string& name);
-const char* PresetName(Preset preset);
+RenderMode RenderModeFromName(const std::string& name);
+const char* RenderModeName(RenderMode mode);
 
 struct Frame {
   cv::Mat bgr;          // [H,W] CV_8UC3
@@ -100,8 +72,8 @@ struct Frame {
   bool upsampled = false;
 };
 
-// Explicit settings of one frame's render. The quality ladder (quality.h) resolves its presets
-// into these; each Preset is one of them (see Animate).
+// Explicit settings of one frame's render. The quality ladder (quality.h) resolves its levels
+// into these; each RenderMode is one of them (see Animate).
 struct RenderSettings {
   int resolution = 0;             // side of the volume render (0 = the model's render size)
   int num_coarse = 0;             // stratified samples per ray (0 = the model's)
@@ -188,6 +160,12 @@ struct ModelInfo {
 // with the network prints it.
 std::string DescribeModel(const ModelInfo& info);
 
+// The model id of the random-weight network of `config` and `seed`: "random:<config>:<seed>"
+// (ModelInfo::model_id; avatar files and the quality cache store it).
+std::string RandomModelId(const std::string& config, int seed);
+// The inverse: true and the config and seed for a random model id, false for a checkpoint's id.
+bool ParseRandomModelId(const std::string& model_id, std::string* config, int* seed);
+
 // The checkpoint a Session with these options loads ("" for random weights) and its origin
 // (see ModelInfo::origin). Throws MissingData, saying where it looked, when there is none.
 std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin = nullptr);
@@ -218,12 +196,6 @@ class Avatar {
   std::shared_ptr<const AvatarState> state_;
 };
 
-// Inputs of the network part of reconstruction besides the aligned portrait.
-struct SourceFit {
-  std::array<float, 25> camera{};                            // source camera C_s as an EG3D label
-  std::shared_ptr<const ExpressionImageSource> expressions;  // I_exp renderer for this identity
-};
-
 class Session {
  public:
   // Loads the checkpoint (or builds random weights when asked). Throws MissingData when no
@@ -247,13 +219,13 @@ class Session {
   // sphere of radius 2.7 / zoom looking at the origin (for `render` and benchmarks; frame sources
   // pass CameraForView(pose, avatar.SourceCamera()) instead). Throws InvalidInput (invalid avatar,
   // unknown control, wrong coefficient count), InvalidOptions (bad pose), Cancelled.
-  Frame Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, Preset preset,
+  Frame Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, RenderMode mode,
                 RunContext* ctx = nullptr) const;
   // One frame seen by `camera`, an EG3D label (25 floats: cam2world + normalised intrinsics),
   // e.g. CameraForView(pose, avatar.SourceCamera()); the avatar's SourceCamera() renders the
   // source view. Throws InvalidInput (as above, or a label that is not a rigid camera), Cancelled.
   Frame Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
-                Preset preset, RunContext* ctx = nullptr) const;
+                RenderMode mode, RunContext* ctx = nullptr) const;
   // The same with explicit render settings (kPreview = {min(64, render size)}, kStandard = {},
   // kFinal = {super_resolution}). Also throws InvalidOptions for bad settings.
   Frame Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
@@ -273,14 +245,6 @@ class Session {
   friend struct SessionAccess;  // core/pipeline/session_access.h (refinement)
   std::unique_ptr<Impl> impl_;
 };
-
-// Which model an avatar file was made with (from its metadata).
-struct AvatarFileInfo {
-  std::string model_id;     // as ModelInfo::model_id
-  std::string config_name;  // e.g. "lite"
-};
-// Throws Io (missing) or ModelLoad (not an avatar file, damaged).
-AvatarFileInfo ReadAvatarFileInfo(const std::filesystem::path& path);
 
 // BGR8 portrait -> AlignedPortrait-like input for callers that already have an aligned crop
 // (tests, tools): resized to 512, matte all ones, empty eye/mouth mask.

@@ -50,9 +50,9 @@ RenderedFrame SessionFrameSource::Render(const FrameRequest& request, RunContext
   const CameraLabel25 camera = Camera(request.view);  // Throws InvalidOptions for a bad pose.
   // A trained super-resolution serves every frame larger than the render; otherwise the render
   // is scaled to the request here.
-  const Preset preset = sr_trained_ ? Preset::kFinal : Preset::kStandard;
+  const RenderMode mode = sr_trained_ ? RenderMode::kFinal : RenderMode::kStandard;
   const Frame frame = settings_ ? session_->Animate(avatar_, request.expression, camera, *settings_, &ctx)
-                                : session_->Animate(avatar_, request.expression, camera, preset, &ctx);
+                                : session_->Animate(avatar_, request.expression, camera, mode, &ctx);
   RenderedFrame out;
   const cv::Size size(request.width, request.height);
   const bool enlarging = size.width > frame.bgr.cols || size.height > frame.bgr.rows;

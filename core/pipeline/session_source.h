@@ -31,7 +31,7 @@ class SessionFrameSource : public FrameSource {
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
   // The camera a view pose is rendered from: CameraForView(pose, avatar.SourceCamera()).
   CameraLabel25 Camera(const ViewPose& pose) const;
-  // Frames render with these settings (a quality preset, quality.h) instead of the default
+  // Frames render with these settings (a quality level, quality.h) instead of the default
   // (super-resolution when the model's SR is trained). Call before sharing the source.
   void SetRenderSettings(const RenderSettings& settings);
   // The rendered avatar (e.g. to read its RefinementInfo).

@@ -34,16 +34,21 @@ SourceOverlay OverlayOf(const face::PortraitReport& report, const face::AlignedP
 }  // namespace
 
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, RunContext& ctx) {
+  face::FaceAnalyzerOptions options;
+  options.data_dir = data_dir;
+  options.embedding = false;  // reconstruction does not use the identity embedding
+  return AnalyseSource(bgr, options, ctx);
+}
+
+SourceAnalysis AnalyseSource(const cv::Mat& bgr, const face::FaceAnalyzerOptions& analyzer, RunContext& ctx) {
   AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "the portrait must be a non-empty 8-bit BGR image";
+  const std::string& data_dir = analyzer.data_dir;
   SourceAnalysis out;
   {
     RunContext::ProgressRange range(ctx, 0.0, 0.8);
     ctx.Report("analyse face", 0.0, "loading face models");
-    face::FaceAnalyzerOptions options;
-    options.data_dir = data_dir;
-    options.embedding = false;  // reconstruction does not use the identity embedding
     face::PortraitReport report;
-    out.portrait = face::SharedFaceAnalyzer(options).AnalyzePortrait(bgr, ctx, &report);
+    out.portrait = face::SharedFaceAnalyzer(analyzer).AnalyzePortrait(bgr, ctx, &report);
     out.overlay = OverlayOf(report, out.portrait);
   }
   for (const auto& w : out.portrait.warnings) {

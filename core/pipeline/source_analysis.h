@@ -11,10 +11,11 @@
 
 #include <opencv2/core.hpp>
 
+#include "core/face/face_analyzer.h"
 #include "core/face/face_types.h"
 #include "core/morphable/morphable.h"
 #include "core/pipeline/frame_source.h"
-#include "core/pipeline/session.h"
+#include "core/pipeline/source_fit.h"
 #include "core/util/run_context.h"
 
 namespace avatar {
@@ -34,5 +35,9 @@ struct SourceAnalysis {
 // Analyses a BGR photo. `data_dir` as in SessionOptions. Throws InvalidInput (no face),
 // MissingData (face models not installed or not part of this build), Cancelled.
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, RunContext& ctx);
+// The same with the face analyser's options (which face, thresholds, identity embedding; its
+// data_dir names the data folder): the data factory analyses its training photos through this
+// call, so that training and inference preprocess a portrait identically.
+SourceAnalysis AnalyseSource(const cv::Mat& bgr, const face::FaceAnalyzerOptions& analyzer, RunContext& ctx);
 
 }  // namespace avatar

@@ -10,7 +10,7 @@
 #include "core/morphable/morphable.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/pipeline/quality.h"
-#include "core/pipeline/refine.h"
+#include "core/pipeline/reconstruct.h"
 #include "core/pipeline/session.h"
 #include "core/pipeline/session_source.h"
 #include "core/pipeline/source_analysis.h"
@@ -64,29 +64,21 @@ std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analys
   return source;
 }
 
-std::shared_ptr<const FrameSource> NeuralAvatar(const SourceAnalysis& analysis, const BackendOptions& options,
+std::shared_ptr<const FrameSource> NeuralAvatar(SourceAnalysis analysis, const BackendOptions& options,
                                                 std::shared_ptr<const Session> session, RunContext& ctx) {
   ctx.Report("reconstruct the neural avatar", 0.7);
-  const QualityPreset* quality = options.quality.empty() ? nullptr : &QualityPresetByName(options.quality);
-  RefineOptions refine;
-  refine.data_dir = options.data_dir;
-  if (quality != nullptr) refine = quality->Refine(refine);
-  if (quality == nullptr) refine.steps = 0;
-  Avatar avatar;
+  ReconstructionOptions ro;
+  ro.quality = options.quality;
+  ro.data_dir = options.data_dir;
+  Reconstruction r;
   {
-    RunContext::ProgressRange range(ctx, 0.7, refine.Enabled() ? 0.75 : 1.0);
-    avatar = session->ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
+    RunContext::ProgressRange range(ctx, 0.7, 1.0);
+    r = ReconstructAnalysed(*session, std::move(analysis), ro, ctx);
   }
-  if (refine.Enabled()) {
-    // The preset's refinement of the planes on the photo (progress "refine", step k/N; cancellable).
-    RunContext::ProgressRange range(ctx, 0.75, 1.0);
-    avatar = RefineAvatar(*session, avatar, analysis, refine, ctx).avatar;
-  }
-  const ModelInfo info = session->Info();
-  auto source = std::make_shared<SessionFrameSource>(std::move(session), std::move(avatar), options.random_weights,
-                                                     analysis.overlay);
-  if (quality != nullptr) source->SetRenderSettings(quality->Render(info));
-  source->SetWarnings(analysis.warnings);
+  auto source = std::make_shared<SessionFrameSource>(std::move(session), std::move(r.avatar), options.random_weights,
+                                                     r.analysis.overlay);
+  if (r.render) source->SetRenderSettings(*r.render);
+  source->SetWarnings(r.analysis.warnings);
   return source;
 }
 
@@ -98,10 +90,10 @@ std::shared_ptr<const Session> SharedSession(const BackendOptions& options) {
   SessionOptions so;
   so.checkpoint = options.checkpoint;
   so.random_weights = options.random_weights && options.checkpoint.empty();
-  so.config = options.preset;
+  so.config = options.config;
   so.data_dir = options.data_dir;
   std::string origin;
-  const std::string key = ResolveCheckpoint(so, &origin).string() + "|" + origin + "|" + options.preset + "|" +
+  const std::string key = ResolveCheckpoint(so, &origin).string() + "|" + origin + "|" + options.config + "|" +
                           options.data_dir;
   std::lock_guard<std::mutex> lock(mutex);
   auto& slot = sessions[key];
@@ -112,9 +104,9 @@ std::shared_ptr<const Session> SharedSession(const BackendOptions& options) {
 void BackendOptions::Validate() const {
   AVATAR_CHECK_OPTION(renderer == "neural" || renderer == "morphable")
       << "--renderer must be neural or morphable, got '" << renderer << "'";
-  AVATAR_CHECK_OPTION(preset == "lite" || preset == "paper")
-      << "--preset must be lite or paper, got '" << preset << "'";
-  if (!quality.empty()) QualityPresetByName(quality);
+  AVATAR_CHECK_OPTION(config == "lite" || config == "paper")
+      << "--config must be lite or paper, got '" << config << "'";
+  if (!quality.empty()) QualityLevelByName(quality);
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,
@@ -154,7 +146,7 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
     ctx.Report("done", 1.0);
     return MorphablePreview(analysis, std::string(kMorphablePreviewLabel) + " (" + preview_reason + ")");
   }
-  return NeuralAvatar(analysis, options, std::move(session), ctx);
+  return NeuralAvatar(std::move(analysis), options, std::move(session), ctx);
 }
 
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {

@@ -26,13 +26,13 @@ struct BackendOptions {
   // SessionOptions::checkpoint). An explicit checkpoint that fails to load is an error, never
   // a silent fallback to the preview.
   std::string checkpoint;
-  // Network configuration of --random-weights: "lite" (fast, CPU-sized) or "paper".
-  std::string preset = "lite";
+  // Network size (model config) of --random-weights: "lite" (fast, CPU-sized) or "paper".
+  std::string config = "lite";
   // Use the neural network with random weights (a plumbing check, never a result).
   bool random_weights = false;
   // Folder with the installed models ("" = AVATAR_DATA_DIR or ~/.cache/avatar-studio).
   std::string data_dir;
-  // Quality preset of the neural avatar (quality.h: its render settings and refinement); "" =
+  // Quality level of the neural avatar (quality.h: its render settings and refinement); "" =
   // the one-shot planes rendered at the model's size (SR when trained).
   std::string quality;
 
@@ -41,12 +41,12 @@ struct BackendOptions {
     v("renderer", renderer, "What renders the head: neural (the trained model) or morphable (the preview)");
     v("checkpoint", checkpoint,
       "Neural model checkpoint (default: <data dir>/models/goha.ckpt if installed, else the bundled model)");
-    v("preset", preset, "Network configuration of --random-weights: lite or paper");
+    v("config", config, "Network size with --random-weights: lite or paper");
     v("random_weights", random_weights,
       "Render with the untrained network's random weights (plumbing check; not a result)");
-    v("quality", quality, "Quality preset: instant, preview, standard, fine, best or paper (\"\" = standard frames, SR when trained)");
+    v("quality", quality, "Quality level: instant, preview, standard, fine, best or paper (\"\" = standard frames, SR when trained)");
   }
-  // Throws InvalidOptions for an unknown preset or quality.
+  // Throws InvalidOptions for an unknown config or quality level.
   void Validate() const;
 };
 

@@ -1,5 +1,5 @@
 #pragma once
-// Reads a dataset written by `avatar-studio dataset build` (core/pipeline/dataset_build.h) with
+// Reads a dataset written by `avatar-studio dataset build` (core/tools/dataset_build.h) with
 // LibTorch only: dataset.json plus one tensor shard per split (shards/train.pt, shards/val.pt,
 // a pickled dict of uint8 images, float labels and coefficients, and int64 pair indices).
 // A dataset built with --synthetic N also has shards/synthetic.pt (same format, pair kind

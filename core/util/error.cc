@@ -20,7 +20,7 @@ void RethrowAsAvatarError(const std::string& context) {
   } catch (const cv::Exception& e) {
     throw InvalidInput(prefix + "image operation failed: " + e.err);
   } catch (const std::bad_alloc&) {
-    throw InternalError(prefix + "out of memory; try a smaller preset or close other programs");
+    throw InternalError(prefix + "out of memory; try a smaller network size (--config) or close other programs");
   } catch (const std::exception& e) {
     throw InternalError(prefix + e.what());
   }

@@ -303,7 +303,7 @@ TEST(Animate, RandomWeightsOnRequestBundledModelByDefaultAllLabelled) {
 TEST(Animate, HelpDescribesTheOptions) {
   const auto r = Studio("animate --help");
   EXPECT_EQ(r.exit_code, 0);
-  for (const char* flag : {"--view", "--neutral-frame", "--smoothing", "--no-audio", "--random-weights", "--preset"}) {
+  for (const char* flag : {"--view", "--neutral-frame", "--smoothing", "--no-audio", "--random-weights", "--config"}) {
     EXPECT_NE(r.out.find(flag), std::string::npos) << flag << "\n" << r.out;
   }
 }

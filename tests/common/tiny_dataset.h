@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "core/io/data_paths.h"
-#include "core/pipeline/dataset_build.h"
+#include "core/tools/dataset_build.h"
 
 namespace avatar::testing {
 

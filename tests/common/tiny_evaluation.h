@@ -14,7 +14,7 @@
 #include "common/temp_dir.h"
 #include "common/tiny_checkpoint.h"
 #include "common/tiny_dataset.h"
-#include "core/pipeline/dataset_build.h"
+#include "core/tools/dataset_build.h"
 #include "core/util/run_context.h"
 
 namespace avatar::testing {

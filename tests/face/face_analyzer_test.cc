@@ -10,7 +10,7 @@
 
 #include "core/face/face_analyzer.h"
 #include "core/face/face_geometry.h"
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/morphable/morphable.h"
 #include "core/util/error.h"
 #include "face/face_test_util.h"

@@ -7,7 +7,7 @@
 
 #include "core/face/blazeface.h"
 #include "core/face/face_geometry.h"
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/face/one_euro.h"
 #include "core/util/error.h"
 

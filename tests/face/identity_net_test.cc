@@ -20,7 +20,7 @@
 
 #include "core/face/face_geometry.h"
 #include "core/face/identity_net.h"
-#include "core/face/image_tensor.h"
+#include "core/face/warp.h"
 #include "core/io/tfjs_graph.h"
 #include "core/util/error.h"
 #include "face_test_util.h"

@@ -7,6 +7,7 @@
 #include "core/model/checkpoint.h"
 #include "core/pipeline/avatar_file.h"
 #include "core/pipeline/avatar_state.h"
+#include "core/pipeline/session.h"
 #include "core/util/error.h"
 #include "fuzz_common.h"
 

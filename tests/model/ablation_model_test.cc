@@ -50,10 +50,10 @@ TEST(AblationConfig, FilesWithoutTheFieldsReadAsTheFullDesign) {
   EXPECT_EQ(old.expression_model, "encoder");
   EXPECT_FALSE(old.expression_bases());
   EXPECT_EQ(old, ModelConfig::Tiny());
-  for (const ModelConfig& preset :
+  for (const ModelConfig& config :
        {ModelConfig::Paper(), ModelConfig::Lite(), ModelConfig::Cpu(), ModelConfig::Tiny()}) {
-    EXPECT_TRUE(preset.appearance_branch) << preset.name;
-    EXPECT_EQ(preset.expression_model, "encoder") << preset.name;
+    EXPECT_TRUE(config.appearance_branch) << config.name;
+    EXPECT_EQ(config.expression_model, "encoder") << config.name;
   }
 }
 
@@ -89,7 +89,7 @@ TEST(ExpressionBases, ParametersAndShapes) {
   EXPECT_FALSE(encoder->expression_bases.defined());
   EXPECT_EQ(encoder->named_parameters(true).find("expression_bases"), nullptr);
 
-  // The size at the cpu preset (planes 3x32x64x64), K = our morphable model's 26 coefficients.
+  // The size at the cpu config (planes 3x32x64x64), K = our morphable model's 26 coefficients.
   ModelConfig cpu = ModelConfig::Cpu();
   cpu.expression_model = "bases";
   GohaModelOptions no_download;
@@ -98,7 +98,7 @@ TEST(ExpressionBases, ParametersAndShapes) {
   const int64_t bp = cpu.plane_size();
   EXPECT_EQ(big->expression_bases.numel(), int64_t{cpu.expression_coefficients} * 3 * cpu.plane_channels * bp * bp);
   const int64_t encoder_params = CountParameters(*big->expression_encoder) + CountParameters(*big->expression_head);
-  std::cout << "cpu preset: expression bases " << cpu.expression_coefficients << " x [3," << cpu.plane_channels << ","
+  std::cout << "cpu config: expression bases " << cpu.expression_coefficients << " x [3," << cpu.plane_channels << ","
             << bp << "," << bp << "] = " << big->expression_bases.numel() << " parameters; E_e + head "
             << encoder_params << "; whole network with bases " << CountParameters(*big) << "\n";
 }

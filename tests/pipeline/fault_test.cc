@@ -39,7 +39,7 @@
 #include "core/io/image_io.h"
 #include "core/io/video_io.h"
 #include "core/model/goha_model.h"
-#include "core/pipeline/dataset_build.h"
+#include "core/tools/dataset_build.h"
 #include "core/pipeline/export.h"
 #include "core/pipeline/refine.h"
 #include "core/pipeline/session.h"

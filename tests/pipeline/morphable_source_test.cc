@@ -78,8 +78,8 @@ TEST(MorphableSource, SerialisesIntoAvatarFiles) {
       PortraitFromAlignedImage(cv::Mat(512, 512, CV_8UC3, cv::Scalar(60, 90, 140))), fit, ctx);
   session.SaveAvatar(avatar, dir / "a.avatar");
   const Avatar loaded = session.LoadAvatar(dir / "a.avatar");
-  const Frame a = session.Animate(avatar, smile, ViewPose{10}, Preset::kStandard);
-  const Frame b = session.Animate(loaded, smile, ViewPose{10}, Preset::kStandard);
+  const Frame a = session.Animate(avatar, smile, ViewPose{10}, RenderMode::kStandard);
+  const Frame b = session.Animate(loaded, smile, ViewPose{10}, RenderMode::kStandard);
   EXPECT_EQ(cv::norm(a.bgr, b.bgr, cv::NORM_INF), 0.0);
   EXPECT_EQ(loaded.ControlNames(), avatar.ControlNames());
 }
@@ -113,7 +113,7 @@ TEST(SessionEndToEnd, ReconstructsAPhotoThroughFaceAnalysisAndFitting) {
   const auto cam = avatar.SourceCamera();
   const double radius = std::sqrt(cam[3] * cam[3] + cam[7] * cam[7] + cam[11] * cam[11]);
   EXPECT_NEAR(radius, 2.7, 0.05);
-  const Frame frame = session.Animate(avatar, {{{"jawOpen", 0.5f}}}, ViewPose{15}, Preset::kFinal);
+  const Frame frame = session.Animate(avatar, {{{"jawOpen", 0.5f}}}, ViewPose{15}, RenderMode::kFinal);
   EXPECT_EQ(frame.bgr.rows, ModelConfig::Tiny().sr_size);
   // A photo without a face is refused with InvalidInput.
   EXPECT_THROW(session.Reconstruct(cv::Mat(300, 300, CV_8UC3, cv::Scalar(30, 200, 30)), ctx), InvalidInput);

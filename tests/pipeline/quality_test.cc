@@ -1,6 +1,6 @@
-// The quality ladder (core/pipeline/quality.h): every preset validates, the ladder is ordered
+// The quality ladder (core/pipeline/quality.h): every quality level validates, the ladder is ordered
 // from cheapest to most refined for every model config, `paper` is the published setting, the
-// session renders a preset's settings, the estimates cache round-trips and a corrupt or foreign
+// session renders a level's settings, the estimates cache round-trips and a corrupt or foreign
 // cache is measured again instead of trusted, and a measurement on the tiny random-weight model
 // gives finite positive times.
 
@@ -39,7 +39,7 @@ ModelInfo InfoOf(const std::string& config) {
   return info;
 }
 
-// Estimates with distinct, valid values for every preset.
+// Estimates with distinct, valid values for every level.
 QualityEstimates Sample(const std::string& model_id, int threads) {
   QualityEstimates e;
   e.model_id = model_id;
@@ -52,7 +52,7 @@ QualityEstimates Sample(const std::string& model_id, int threads) {
   e.refine_step_seconds = 0.125;
   double t = 1.0;
   for (const auto& p : QualityLadder()) {
-    e.presets.push_back({p.name, t, t / 100.0});
+    e.levels.push_back({p.name, t, t / 100.0});
     t += 1.0;
   }
   return e;
@@ -63,7 +63,7 @@ void WriteText(const fs::path& path, const std::string& text) {
   f << text;
 }
 
-TEST(QualityLadder, EveryPresetValidatesAndNamesAreUnique) {
+TEST(QualityLadder, EveryLevelValidatesAndNamesAreUnique) {
   const auto& ladder = QualityLadder();
   ASSERT_EQ(ladder.size(), 6u);
   const std::vector<std::string> names = {"instant", "preview", "standard", "fine", "best", "paper"};
@@ -71,32 +71,32 @@ TEST(QualityLadder, EveryPresetValidatesAndNamesAreUnique) {
     EXPECT_EQ(ladder[i].name, names[i]);
     EXPECT_NO_THROW(ladder[i].Validate()) << ladder[i].name;
     EXPECT_FALSE(ladder[i].summary.empty()) << ladder[i].name;
-    EXPECT_EQ(&QualityPresetByName(names[i]), &ladder[i]);
+    EXPECT_EQ(&QualityLevelByName(names[i]), &ladder[i]);
   }
-  EXPECT_EQ(QualityPresetNames(), "instant, preview, standard, fine, best, paper");
+  EXPECT_EQ(QualityLevelNames(), "instant, preview, standard, fine, best, paper");
   try {
-    QualityPresetByName("ultra");
-    ADD_FAILURE() << "an unknown preset was accepted";
+    QualityLevelByName("ultra");
+    ADD_FAILURE() << "an unknown quality level was accepted";
   } catch (const InvalidOptions& e) {
     EXPECT_NE(std::string(e.what()).find("ultra"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("instant, preview"), std::string::npos) << e.what();
   }
 }
 
-TEST(QualityLadder, BadPresetsAreRefused) {
-  QualityPreset p = QualityPresetByName("standard");
+TEST(QualityLadder, BadLevelsAreRefused) {
+  QualityLevel p = QualityLevelByName("standard");
   p.render_scale = 0.0;
   EXPECT_THROW(p.Validate(), InvalidOptions);
-  p = QualityPresetByName("standard");
+  p = QualityLevelByName("standard");
   p.sample_scale = std::nan("");
   EXPECT_THROW(p.Validate(), InvalidOptions);
-  p = QualityPresetByName("standard");
+  p = QualityLevelByName("standard");
   p.refine_steps = -1;
   EXPECT_THROW(p.Validate(), InvalidOptions);
-  p = QualityPresetByName("standard");
+  p = QualityLevelByName("standard");
   p.refine_seconds = -2.0;
   EXPECT_THROW(p.Validate(), InvalidOptions);
-  p = QualityPresetByName("standard");
+  p = QualityLevelByName("standard");
   p.name.clear();
   EXPECT_THROW(p.Validate(), InvalidOptions);
 }
@@ -107,14 +107,14 @@ TEST(QualityLadder, OrderedFromInstantToBestForEveryConfig) {
     const auto& ladder = QualityLadder();
     // instant .. best: frame cost, SR and refinement never decrease.
     for (size_t i = 1; i + 1 < ladder.size(); ++i) {
-      const QualityPreset& a = ladder[i - 1];
-      const QualityPreset& b = ladder[i];
+      const QualityLevel& a = ladder[i - 1];
+      const QualityLevel& b = ladder[i];
       EXPECT_LE(a.FrameCost(info), b.FrameCost(info)) << config << ": " << a.name << " vs " << b.name;
       EXPECT_LE(static_cast<int>(a.super_resolution), static_cast<int>(b.super_resolution)) << config << " " << b.name;
       EXPECT_LE(a.refine_steps, b.refine_steps) << config << ": " << a.name << " vs " << b.name;
     }
-    const QualityPreset& instant = QualityPresetByName("instant");
-    const QualityPreset& best = QualityPresetByName("best");
+    const QualityLevel& instant = QualityLevelByName("instant");
+    const QualityLevel& best = QualityLevelByName("best");
     for (const auto& p : ladder) {
       if (p.name != "instant") {
         EXPECT_LT(instant.FrameCost(info), p.FrameCost(info)) << config << " " << p.name;
@@ -131,34 +131,34 @@ TEST(QualityLadder, OrderedFromInstantToBestForEveryConfig) {
 TEST(QualityLadder, PaperIsThePublishedSettingAndStandardTheModelsOwn) {
   // The paper config is the published network: 128^2 render, 48 + 48 samples, SR to 512, one shot.
   const ModelInfo paper_info = InfoOf("paper");
-  const RenderSettings paper = QualityPresetByName("paper").Render(paper_info);
+  const RenderSettings paper = QualityLevelByName("paper").Render(paper_info);
   EXPECT_EQ(paper.resolution, 128);
   EXPECT_EQ(paper.num_coarse, 48);
   EXPECT_EQ(paper.num_importance, 48);
   EXPECT_TRUE(paper.super_resolution);
-  EXPECT_FALSE(QualityPresetByName("paper").Refine().Enabled());
-  EXPECT_EQ(QualityPresetByName("paper").Describe(paper_info), "128 px, 48+48 samples, SR to 512 px, no refinement");
+  EXPECT_FALSE(QualityLevelByName("paper").Refine().Enabled());
+  EXPECT_EQ(QualityLevelByName("paper").Describe(paper_info), "128 px, 48+48 samples, SR to 512 px, no refinement");
   // Any other config: its own render size and samples.
   const ModelConfig cpu = ModelConfig::FromName("cpu");
-  const RenderSettings standard = QualityPresetByName("standard").Render(InfoOf("cpu"));
+  const RenderSettings standard = QualityLevelByName("standard").Render(InfoOf("cpu"));
   EXPECT_EQ(standard.resolution, cpu.render_size);
   EXPECT_EQ(standard.num_coarse, cpu.num_coarse);
   EXPECT_EQ(standard.num_importance, cpu.num_importance);
   EXPECT_FALSE(standard.super_resolution);
-  const RenderSettings instant = QualityPresetByName("instant").Render(InfoOf("cpu"));
+  const RenderSettings instant = QualityLevelByName("instant").Render(InfoOf("cpu"));
   EXPECT_EQ(instant.resolution, cpu.render_size / 2);
   EXPECT_EQ(instant.num_coarse, cpu.num_coarse / 2);
-  // The preset's refinement keeps the caller's weights.
+  // The level's refinement keeps the caller's weights.
   RefineOptions base;
   base.lr = 0.01;
   base.perceptual_weight = 0.0;
-  const RefineOptions fine = QualityPresetByName("fine").Refine(base);
+  const RefineOptions fine = QualityLevelByName("fine").Refine(base);
   EXPECT_EQ(fine.steps, 30);
   EXPECT_EQ(fine.lr, 0.01);
   EXPECT_EQ(fine.perceptual_weight, 0.0);
 }
 
-TEST(QualityLadder, LadderTextListsEveryPresetWithItsEstimateOrNotMeasured) {
+TEST(QualityLadder, LadderTextListsEveryLevelWithItsEstimateOrNotMeasured) {
   const ModelInfo info = InfoOf("cpu");
   const std::string none = QualityLadderText(&info, std::nullopt);
   for (const auto& p : QualityLadder()) {
@@ -185,24 +185,24 @@ TEST(QualityCache, RoundTripKeepsOtherEntriesAndReplacesOwn) {
 
   const QualityEstimates a = Sample("ckpt:a", 2);
   QualityEstimates b = Sample("ckpt:b", 2);
-  b.presets[0].frame_seconds = 0.75;
+  b.levels[0].frame_seconds = 0.75;
   WriteCachedQualityEstimates(cache, a);
   WriteCachedQualityEstimates(cache, b);
   const auto ra = ReadCachedQualityEstimates(cache, "ckpt:a", 2);
   const auto rb = ReadCachedQualityEstimates(cache, "ckpt:b", 2);
   ASSERT_TRUE(ra && rb);
   EXPECT_FALSE(ReadCachedQualityEstimates(cache, "ckpt:a", 1)) << "keyed by the thread count too";
-  EXPECT_EQ(ra->presets.size(), a.presets.size());
-  for (size_t i = 0; i < a.presets.size(); ++i) {
-    EXPECT_EQ(ra->presets[i].preset, a.presets[i].preset);
-    EXPECT_EQ(ra->presets[i].reconstruct_seconds, a.presets[i].reconstruct_seconds);
-    EXPECT_EQ(ra->presets[i].frame_seconds, a.presets[i].frame_seconds);
+  EXPECT_EQ(ra->levels.size(), a.levels.size());
+  for (size_t i = 0; i < a.levels.size(); ++i) {
+    EXPECT_EQ(ra->levels[i].level, a.levels[i].level);
+    EXPECT_EQ(ra->levels[i].reconstruct_seconds, a.levels[i].reconstruct_seconds);
+    EXPECT_EQ(ra->levels[i].frame_seconds, a.levels[i].frame_seconds);
   }
   EXPECT_EQ(ra->one_shot_seconds, a.one_shot_seconds);
   EXPECT_EQ(ra->refine_step_seconds, a.refine_step_seconds);
   EXPECT_EQ(ra->config_json, a.config_json);
   EXPECT_EQ(ra->measured_at, a.measured_at);
-  EXPECT_EQ(rb->presets[0].frame_seconds, 0.75);
+  EXPECT_EQ(rb->levels[0].frame_seconds, 0.75);
 
   QualityEstimates a2 = a;
   a2.one_shot_seconds = 3.0;
@@ -260,7 +260,7 @@ TEST(QualityCache, CorruptOrForeignContentIsNeverTrusted) {
   cases.push_back({"string time", with_entry(e)});
   e = good_entry;
   e["presets"].erase("paper");
-  cases.push_back({"missing preset", with_entry(e)});
+  cases.push_back({"missing level", with_entry(e)});
   e = good_entry;
   e["ladder"] = "0000000000000000";
   cases.push_back({"stale ladder", with_entry(e)});
@@ -279,7 +279,7 @@ TEST(QualityCache, CorruptOrForeignContentIsNeverTrusted) {
   }
   // Incomplete estimates are never written.
   QualityEstimates partial = good;
-  partial.presets.pop_back();
+  partial.levels.pop_back();
   EXPECT_THROW(WriteCachedQualityEstimates(cache, partial), InvalidInput);
 }
 
@@ -306,11 +306,11 @@ TEST(QualityMeasure, TinyModelGivesFinitePositiveTimesAndCachesThem) {
   EXPECT_EQ(e.threads, QualityEstimateThreads());
   EXPECT_EQ(ctx.Last().fraction, 1.0);
   for (double v : {e.one_shot_seconds, e.refine_step_seconds}) EXPECT_TRUE(std::isfinite(v) && v > 0) << v;
-  for (const auto& p : e.presets) {
-    EXPECT_TRUE(std::isfinite(p.reconstruct_seconds) && p.reconstruct_seconds > 0) << p.preset;
-    EXPECT_TRUE(std::isfinite(p.frame_seconds) && p.frame_seconds > 0) << p.preset;
+  for (const auto& p : e.levels) {
+    EXPECT_TRUE(std::isfinite(p.reconstruct_seconds) && p.reconstruct_seconds > 0) << p.level;
+    EXPECT_TRUE(std::isfinite(p.frame_seconds) && p.frame_seconds > 0) << p.level;
   }
-  // Reconstruct estimates add the preset's steps to the same one-shot time.
+  // Reconstruct estimates add the level's steps to the same one-shot time.
   EXPECT_DOUBLE_EQ(e.Find("standard")->reconstruct_seconds, e.one_shot_seconds);
   EXPECT_DOUBLE_EQ(e.Find("fine")->reconstruct_seconds,
                    e.one_shot_seconds + e.refine_setup_seconds + 30 * e.refine_step_seconds);
@@ -331,7 +331,7 @@ TEST(QualityMeasure, ExpressionBasesModelIsMeasuredFromCoefficients) {
   RunContext ctx;
   const QualityEstimates e = MeasureQualityEstimates(session, FastRefine(), ctx);
   EXPECT_TRUE(e.Complete());
-  for (const auto& p : e.presets) EXPECT_TRUE(std::isfinite(p.frame_seconds) && p.frame_seconds > 0) << p.preset;
+  for (const auto& p : e.levels) EXPECT_TRUE(std::isfinite(p.frame_seconds) && p.frame_seconds > 0) << p.level;
   EXPECT_GT(session.Counters().expression_encoder, 0);
   EXPECT_EQ(session.Counters().expression_images, 0);  // no I_exp for this network
 }
@@ -343,7 +343,7 @@ TEST(QualityMeasure, CancelStopsTheMeasurement) {
   EXPECT_THROW(MeasureQualityEstimates(session, FastRefine(), ctx), Cancelled);
 }
 
-TEST(QualityRender, SessionRendersEachPresetsSettings) {
+TEST(QualityRender, SessionRendersEachLevelsSettings) {
   const Session session(Tiny());
   const ModelInfo info = session.Info();
   SourceFit fit;
@@ -361,9 +361,9 @@ TEST(QualityRender, SessionRendersEachPresetsSettings) {
     EXPECT_EQ(f.bgr.rows, side) << p.name;
     EXPECT_EQ(f.super_resolved, p.super_resolution) << p.name << " (random weights run the SR)";
   }
-  // The Preset overload is the settings overload.
-  const Frame standard = session.Animate(avatar, Expression{}, fit.camera, Preset::kStandard);
-  const Frame same = session.Animate(avatar, Expression{}, fit.camera, QualityPresetByName("standard").Render(info));
+  // The RenderMode overload is the settings overload.
+  const Frame standard = session.Animate(avatar, Expression{}, fit.camera, RenderMode::kStandard);
+  const Frame same = session.Animate(avatar, Expression{}, fit.camera, QualityLevelByName("standard").Render(info));
   ASSERT_EQ(standard.bgr.size(), same.bgr.size());
   EXPECT_EQ(cv::norm(standard.bgr, same.bgr, cv::NORM_INF), 0.0);
   RenderSettings bad;

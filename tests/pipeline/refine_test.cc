@@ -29,7 +29,7 @@
 #include "core/pipeline/session.h"
 #include "core/pipeline/session_access.h"
 #include "core/pipeline/source_analysis.h"
-#include "core/pipeline/synthetic_head.h"
+#include "core/tools/synthetic_head.h"
 #include "core/render/view_pose.h"
 #include "core/util/error.h"
 #include "synthetic_expression_source.h"
@@ -131,7 +131,7 @@ TEST_F(Refine, SourceViewPsnrGrows) {
   EXPECT_FALSE(SamePlanes(r.avatar, avatar_));
   // The input avatar is untouched and the refined one renders.
   EXPECT_EQ(SourceViewPsnr(*session_, avatar_, target_), before);
-  const Frame f = session_->Animate(r.avatar, {}, ViewPose{30}, Preset::kStandard);
+  const Frame f = session_->Animate(r.avatar, {}, ViewPose{30}, RenderMode::kStandard);
   EXPECT_EQ(f.bgr.rows, session_->Info().render_size);
   const nlohmann::json info = nlohmann::json::parse(r.avatar.RefinementInfo());
   EXPECT_EQ(info.at("steps").get<int>(), 40);
@@ -252,8 +252,8 @@ TEST_F(Refine, RefinedAvatarFileRoundTripIsExact) {
   EXPECT_TRUE(SamePlanes(loaded, r.avatar));
   EXPECT_EQ(loaded.RefinementInfo(), r.avatar.RefinementInfo());
   for (const ViewPose& view : {ViewPose{}, ViewPose{30, -5}}) {
-    const Frame a = session_->Animate(r.avatar, Expression{{{"jawOpen", 0.4f}}}, view, Preset::kStandard);
-    const Frame b = session_->Animate(loaded, Expression{{{"jawOpen", 0.4f}}}, view, Preset::kStandard);
+    const Frame a = session_->Animate(r.avatar, Expression{{{"jawOpen", 0.4f}}}, view, RenderMode::kStandard);
+    const Frame b = session_->Animate(loaded, Expression{{{"jawOpen", 0.4f}}}, view, RenderMode::kStandard);
     EXPECT_EQ(cv::norm(a.bgr, b.bgr, cv::NORM_INF), 0.0);
     EXPECT_EQ(cv::norm(a.opacity, b.opacity, cv::NORM_INF), 0.0);
   }
@@ -274,7 +274,7 @@ TEST_F(Refine, ExtremeSettingsStayFinite) {
   EXPECT_TRUE(torch::isfinite(SessionAccess::Appearance(r.avatar)).all().item<bool>());
   EXPECT_TRUE(std::isfinite(r.loss_after));
   EXPECT_LE(r.loss_after, r.loss_before);  // the best evaluated planes are kept
-  const Frame f = session_->Animate(r.avatar, {}, ViewPose{}, Preset::kStandard);
+  const Frame f = session_->Animate(r.avatar, {}, ViewPose{}, RenderMode::kStandard);
   EXPECT_TRUE(cv::checkRange(f.opacity) && cv::checkRange(f.depth));
 
   RefineOptions bad = FastOptions(1);
@@ -300,7 +300,7 @@ TEST_F(Refine, RejectsForeignAndEmptyAvatars) {
 }
 
 TEST_F(Refine, LeavesTheSharedNetworkUntouchedWhileOthersAnimate) {
-  const Frame reference = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
+  const Frame reference = session_->Animate(avatar_, {}, ViewPose{20}, RenderMode::kStandard);
   RefineResult r;
   std::thread refiner([&] {
     RunContext ctx;
@@ -308,12 +308,12 @@ TEST_F(Refine, LeavesTheSharedNetworkUntouchedWhileOthersAnimate) {
   });
   int frames = 0;
   for (; frames < 10; ++frames) {
-    const Frame f = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
+    const Frame f = session_->Animate(avatar_, {}, ViewPose{20}, RenderMode::kStandard);
     EXPECT_EQ(cv::norm(f.bgr, reference.bgr, cv::NORM_INF), 0.0) << "frame " << frames;
   }
   refiner.join();
   EXPECT_EQ(r.steps, 30);
-  const Frame after = session_->Animate(avatar_, {}, ViewPose{20}, Preset::kStandard);
+  const Frame after = session_->Animate(avatar_, {}, ViewPose{20}, RenderMode::kStandard);
   EXPECT_EQ(cv::norm(after.bgr, reference.bgr, cv::NORM_INF), 0.0);
   for (const auto& p : SessionAccess::Model(*session_)->parameters()) EXPECT_FALSE(p.grad().defined());
 }
@@ -443,7 +443,7 @@ double FramePsnr(const cv::Mat& bgr8, const cv::Mat& truth) {
 // the source view closer to the photo, and the turned views at yaw -20 and +20, which the
 // refinement never sees, may not end further from the known head than the one-shot planes' renders
 // by more than 0.5 dB (the stated margin of this non-regression check). Turned views: PSNR of the
-// frame (standard preset, render size 32) against the head's render at the same camera, both on
+// frame (standard mode, render size 32) against the head's render at the same camera, both on
 // black. Measured 2026-12-04 (AMD EPYC, AVX-512) over AVATAR_THREADS 1 and 2 and the OpenBLAS
 // core types Haswell (this CPU's default), Zen, SkylakeX, Sandybridge, Prescott, and Haswell with
 // oneDNN and ATen limited to AVX2: source view 19.602 -> 21.486 dB, a gain of 1.884 dB in every
@@ -483,8 +483,8 @@ TEST(RefineBundled, GainsAtTheSourceViewAndKeepsTheTurnedViews) {
   for (const double yaw : {-20.0, 20.0}) {
     const std::array<float, 25> camera = render::CameraForView(ViewPose{yaw}, avatar.SourceCamera());
     const cv::Mat truth = KnownView(k.head, camera, res);
-    const double before = FramePsnr(session.Animate(avatar, {}, camera, Preset::kStandard).bgr, truth);
-    const double after = FramePsnr(session.Animate(r.avatar, {}, camera, Preset::kStandard).bgr, truth);
+    const double before = FramePsnr(session.Animate(avatar, {}, camera, RenderMode::kStandard).bgr, truth);
+    const double after = FramePsnr(session.Animate(r.avatar, {}, camera, RenderMode::kStandard).bgr, truth);
     std::printf("bundled model, yaw %+.0f: PSNR against the known head %.3f dB one-shot, %.3f dB refined (%+.3f)\n",
                 yaw, before, after, after - before);
     EXPECT_GT(after, before - 0.5) << "refinement made the view at yaw " << yaw << " worse";

@@ -157,7 +157,7 @@ TEST(SessionSource, RendersAtTheViewsCameraWithTheFramesExpressionUnchanged) {
   const int calls = recorder->Calls();
 
   const Frame want = session->Animate(avatar, request.expression, CameraForView(request.view, avatar.SourceCamera()),
-                                      Preset::kStandard);
+                                      RenderMode::kStandard);
   EXPECT_EQ(recorder->Calls(), calls) << "the same expression must come from the session's cache";
   ASSERT_EQ(got.bgr.size(), want.bgr.size());
   EXPECT_EQ(cv::norm(got.bgr, want.bgr, cv::NORM_INF), 0.0);

@@ -1,4 +1,4 @@
-// Session: reconstruct once, animate many frames; caching (by counters), presets, avatar files,
+// Session: reconstruct once, animate many frames; caching (by counters), render modes, avatar files,
 // errors, cancellation and concurrent use. Tiny random-weight network, synthetic inputs.
 
 #include <gtest/gtest.h>
@@ -63,7 +63,7 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
   EXPECT_EQ(c.renders, 1);  // the lifting depth render
 
   session.ResetCounters();
-  session.Animate(avatar, {}, ViewPose{}, Preset::kPreview);
+  session.Animate(avatar, {}, ViewPose{}, RenderMode::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.expression_images, 1);
   EXPECT_EQ(c.expression_encoder, 1);
@@ -71,7 +71,7 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
 
   // Camera-only changes: zero encoders.
   session.ResetCounters();
-  for (double yaw : {-30.0, 0.0, 25.0, 60.0}) session.Animate(avatar, {}, ViewPose{yaw, -10.0}, Preset::kPreview);
+  for (double yaw : {-30.0, 0.0, 25.0, 60.0}) session.Animate(avatar, {}, ViewPose{yaw, -10.0}, RenderMode::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.canonical_encoder + c.appearance_encoder + c.expression_encoder, 0);
   EXPECT_EQ(c.expression_images, 0);
@@ -81,16 +81,16 @@ TEST(Session, CachingRunsOnlyWhatChanged) {
 
   // Expression change: only E_e (and the expression image).
   session.ResetCounters();
-  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{10.0}, Preset::kPreview);
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{10.0}, RenderMode::kPreview);
   c = session.Counters();
   EXPECT_EQ(c.expression_encoder, 1);
   EXPECT_EQ(c.expression_images, 1);
   EXPECT_EQ(c.canonical_encoder + c.appearance_encoder + c.rasterizations, 0);
 
-  // An explicit zero is the neutral expression (cache hit), SR only for the final preset.
+  // An explicit zero is the neutral expression (cache hit), SR only for the final mode.
   session.ResetCounters();
-  session.Animate(avatar, {{{"jawOpen", 0.0f}}}, ViewPose{}, Preset::kStandard);
-  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{}, Preset::kFinal);
+  session.Animate(avatar, {{{"jawOpen", 0.0f}}}, ViewPose{}, RenderMode::kStandard);
+  session.Animate(avatar, {{{"jawOpen", 0.7f}}}, ViewPose{}, RenderMode::kFinal);
   c = session.Counters();
   EXPECT_EQ(c.expression_encoder, 0);
   EXPECT_EQ(c.super_resolutions, 1);
@@ -101,15 +101,15 @@ TEST(Session, FramesHaveTheRightSizesAndRanges) {
   Session session(TinyOptions());
   const Avatar avatar = MakeAvatar(session);
   const ModelConfig c = ModelConfig::Tiny();
-  for (Preset preset : {Preset::kPreview, Preset::kStandard, Preset::kFinal}) {
-    const Frame f = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{20, 10, -5}, preset);
-    const int side = preset == Preset::kFinal ? c.sr_size : c.render_size;
+  for (RenderMode mode : {RenderMode::kPreview, RenderMode::kStandard, RenderMode::kFinal}) {
+    const Frame f = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{20, 10, -5}, mode);
+    const int side = mode == RenderMode::kFinal ? c.sr_size : c.render_size;
     EXPECT_EQ(f.bgr.type(), CV_8UC3);
     EXPECT_EQ(f.bgr.rows, side);
     EXPECT_EQ(f.bgr.cols, side);
     EXPECT_EQ(f.opacity.size(), f.bgr.size());
     EXPECT_EQ(f.depth.size(), f.bgr.size());
-    EXPECT_EQ(f.super_resolved, preset == Preset::kFinal);
+    EXPECT_EQ(f.super_resolved, mode == RenderMode::kFinal);
     double lo, hi;
     cv::minMaxLoc(f.opacity, &lo, &hi);
     EXPECT_GE(lo, 0.0);
@@ -124,16 +124,16 @@ TEST(Session, FramesHaveTheRightSizesAndRanges) {
 TEST(Session, DeterministicAndExpressionSensitive) {
   Session session(TinyOptions());
   const Avatar avatar = MakeAvatar(session);
-  const Frame a = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard);
-  const Frame b = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard);
+  const Frame a = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, RenderMode::kStandard);
+  const Frame b = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{15}, RenderMode::kStandard);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.depth, b.depth));
   // A fresh session (cache cold) gives the same frame.
   Session other(TinyOptions());
   const Avatar avatar2 = MakeAvatar(other);
-  EXPECT_TRUE(SameMat(a.bgr, other.Animate(avatar2, {{{"jawOpen", 1.0f}}}, ViewPose{15}, Preset::kStandard).bgr));
+  EXPECT_TRUE(SameMat(a.bgr, other.Animate(avatar2, {{{"jawOpen", 1.0f}}}, ViewPose{15}, RenderMode::kStandard).bgr));
   // Changing the expression changes the frame (T_e differs), even with random weights.
-  const Frame n = session.Animate(avatar, {}, ViewPose{15}, Preset::kStandard);
+  const Frame n = session.Animate(avatar, {}, ViewPose{15}, RenderMode::kStandard);
   EXPECT_GT(cv::norm(a.opacity, n.opacity, cv::NORM_INF) + cv::norm(a.bgr, n.bgr, cv::NORM_INF), 0.0);
 }
 
@@ -147,8 +147,8 @@ TEST(Session, AvatarFileRoundTripGivesIdenticalFrames) {
   EXPECT_EQ(loaded.SourceCamera(), avatar.SourceCamera());
   EXPECT_TRUE(SameMat(loaded.SourceImage(), avatar.SourceImage()));
   EXPECT_EQ(loaded.ControlNames(), avatar.ControlNames());
-  const Frame a = session.Animate(avatar, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, Preset::kFinal);
-  const Frame b = session.Animate(loaded, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, Preset::kFinal);
+  const Frame a = session.Animate(avatar, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, RenderMode::kFinal);
+  const Frame b = session.Animate(loaded, {{{"smile", 0.3f}}}, ViewPose{-20, -5}, RenderMode::kFinal);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.opacity, b.opacity));
   // Saving the loaded avatar again reproduces the file byte for byte.
@@ -163,7 +163,7 @@ TEST(Session, AvatarFilesFromOtherModelsOrDamagedAreRejected) {
   session.SaveAvatar(avatar, dir.path() / "a.avatar");
   Session other_seed(TinyOptions(4));
   EXPECT_THROW(other_seed.LoadAvatar(dir.path() / "a.avatar"), ModelLoad);
-  EXPECT_THROW(other_seed.Animate(avatar, {}, ViewPose{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(other_seed.Animate(avatar, {}, ViewPose{}, RenderMode::kPreview), InvalidInput);
   std::string bytes = ReadFileBytes(dir.path() / "a.avatar");
   WriteBytesAtomically(dir.path() / "cut.avatar", bytes.substr(0, bytes.size() / 3));
   EXPECT_THROW(session.LoadAvatar(dir.path() / "cut.avatar"), ModelLoad);
@@ -188,8 +188,8 @@ TEST(Session, CheckpointSessionEqualsRandomSessionWithSameWeights) {
   EXPECT_EQ(a.Info().parameters, b.Info().parameters);
   EXPECT_EQ(a.Info().config_name, "tiny");
   EXPECT_EQ(a.Info().model_id.rfind("ckpt:", 0), 0u);
-  const Frame fa = a.Animate(MakeAvatar(a), {{{"jawOpen", 0.4f}}}, ViewPose{30}, Preset::kFinal);
-  const Frame fb = b.Animate(MakeAvatar(b), {{{"jawOpen", 0.4f}}}, ViewPose{30}, Preset::kFinal);
+  const Frame fa = a.Animate(MakeAvatar(a), {{{"jawOpen", 0.4f}}}, ViewPose{30}, RenderMode::kFinal);
+  const Frame fb = b.Animate(MakeAvatar(b), {{{"jawOpen", 0.4f}}}, ViewPose{30}, RenderMode::kFinal);
   EXPECT_TRUE(SameMat(fa.bgr, fb.bgr));
 }
 
@@ -235,9 +235,9 @@ TEST(Session, ExpressionBasesModelMixesTeFromTheExpressionCoefficients) {
   Expression raw;  // driver-style raw coefficients
   raw.coefficients.assign(k, 0.0f);
   raw.coefficients[2] = 1.5f;
-  const Frame neutral = session.Animate(avatar, {}, ViewPose{}, Preset::kStandard);
-  const Frame jaw = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, Preset::kStandard);
-  const Frame driven = session.Animate(avatar, raw, ViewPose{15}, Preset::kStandard);
+  const Frame neutral = session.Animate(avatar, {}, ViewPose{}, RenderMode::kStandard);
+  const Frame jaw = session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, RenderMode::kStandard);
+  const Frame driven = session.Animate(avatar, raw, ViewPose{15}, RenderMode::kStandard);
   const SessionCounters c = session.Counters();
   EXPECT_EQ(c.expression_images, 0);   // no I_exp: T_e comes from the coefficients
   EXPECT_EQ(c.expression_encoder, 3);  // one mix of the bases per new expression
@@ -247,7 +247,7 @@ TEST(Session, ExpressionBasesModelMixesTeFromTheExpressionCoefficients) {
     EXPECT_TRUE(cv::checkRange(f->depth));
   }
   const double jaw_change = MeanAbsDiff(neutral.bgr, jaw.bgr);
-  const Frame driven_front = session.Animate(avatar, raw, ViewPose{}, Preset::kStandard);
+  const Frame driven_front = session.Animate(avatar, raw, ViewPose{}, RenderMode::kStandard);
   const double driven_change = MeanAbsDiff(neutral.bgr, driven_front.bgr);
   std::printf(
       "bases model: mean |frame difference| neutral vs jawOpen=1 %.2f, vs raw coefficient 2 = 1.5 %.2f "
@@ -255,7 +255,7 @@ TEST(Session, ExpressionBasesModelMixesTeFromTheExpressionCoefficients) {
       jaw_change, driven_change);
   EXPECT_GT(jaw_change, 0.5);
   EXPECT_GT(driven_change, 0.5);
-  EXPECT_TRUE(SameMat(jaw.bgr, session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, Preset::kStandard).bgr));
+  EXPECT_TRUE(SameMat(jaw.bgr, session.Animate(avatar, {{{"jawOpen", 1.0f}}}, ViewPose{}, RenderMode::kStandard).bgr));
   EXPECT_EQ(session.Counters().expression_encoder, 3);  // repeated expressions are cached
 
   // T_e of jawOpen = 1 is beta = (1, 0, ...) over std 1: the first basis itself.
@@ -266,7 +266,7 @@ TEST(Session, ExpressionBasesModelMixesTeFromTheExpressionCoefficients) {
 
   // An avatar whose expression source has no coefficients cannot drive such a network.
   const Avatar plain = MakeAvatar(session);
-  EXPECT_THROW(session.Animate(plain, {}, ViewPose{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(plain, {}, ViewPose{}, RenderMode::kPreview), InvalidInput);
 }
 
 TEST(Session, StageOneWeightsUpsampleInsteadOfRunningTheUntrainedSr) {
@@ -279,8 +279,8 @@ TEST(Session, StageOneWeightsUpsampleInsteadOfRunningTheUntrainedSr) {
   EXPECT_NE(DescribeModel(session.Info()).find("super-resolution not trained"), std::string::npos);
   const Avatar avatar = MakeAvatar(session);
   session.ResetCounters();
-  const Frame standard = session.Animate(avatar, {}, ViewPose{10}, Preset::kStandard);
-  const Frame final_frame = session.Animate(avatar, {}, ViewPose{10}, Preset::kFinal);
+  const Frame standard = session.Animate(avatar, {}, ViewPose{10}, RenderMode::kStandard);
+  const Frame final_frame = session.Animate(avatar, {}, ViewPose{10}, RenderMode::kFinal);
   EXPECT_EQ(session.Counters().super_resolutions, 0);
   EXPECT_FALSE(final_frame.super_resolved);
   EXPECT_TRUE(final_frame.upsampled);
@@ -338,7 +338,7 @@ TEST(Session, DefaultIsTheInstalledModelElseTheBundledOneElseAClearError) {
 TEST(Session, BadInputsGiveTypedErrors) {
   Session session(TinyOptions());
   RunContext ctx;
-  EXPECT_THROW(session.Animate(Avatar{}, {}, ViewPose{}, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(Avatar{}, {}, ViewPose{}, RenderMode::kPreview), InvalidInput);
   face::AlignedPortrait empty;
   EXPECT_THROW(session.ReconstructFromAnalysis(empty, FrontalFit(), ctx), InvalidInput);
   SourceFit nan_fit = FrontalFit();
@@ -350,10 +350,10 @@ TEST(Session, BadInputsGiveTypedErrors) {
   EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), bad_fit, ctx),
                InvalidInput);
   const Avatar avatar = MakeAvatar(session);
-  EXPECT_THROW(session.Animate(avatar, {{{"frown", 1.0f}}}, ViewPose{}, Preset::kPreview), InvalidInput);
-  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{std::nan(""), 0}, Preset::kPreview), InvalidOptions);
-  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{0, 0, 0, -1}, Preset::kPreview), InvalidOptions);
-  EXPECT_THROW(PresetFromName("ultra"), InvalidOptions);
+  EXPECT_THROW(session.Animate(avatar, {{{"frown", 1.0f}}}, ViewPose{}, RenderMode::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{std::nan(""), 0}, RenderMode::kPreview), InvalidOptions);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{0, 0, 0, -1}, RenderMode::kPreview), InvalidOptions);
+  EXPECT_THROW(RenderModeFromName("ultra"), InvalidOptions);
   EXPECT_THROW(session.Reconstruct(cv::Mat(), ctx), InvalidInput);
 }
 
@@ -368,7 +368,7 @@ TEST(Session, HardCasesStayFinite) {
   const Avatar dark = session.ReconstructFromAnalysis(black, FrontalFit(), ctx);
   for (const Avatar* a : {&small, &dark}) {
     for (const ViewPose& v : {ViewPose{180, 0}, ViewPose{-179, -89.5}, ViewPose{0, 89.5, -180}, ViewPose{45, 0, 0, 9.0}}) {
-      const Frame f = session.Animate(*a, {{{"jawOpen", 5.0f}, {"smile", -3.0f}}}, v, Preset::kFinal);
+      const Frame f = session.Animate(*a, {{{"jawOpen", 5.0f}, {"smile", -3.0f}}}, v, RenderMode::kFinal);
       EXPECT_TRUE(cv::checkRange(f.opacity));
       EXPECT_TRUE(cv::checkRange(f.depth));
     }
@@ -382,7 +382,7 @@ TEST(Session, CancellationStopsReconstructAndAnimate) {
   ctx.RequestCancel();
   EXPECT_THROW(session.ReconstructFromAnalysis(PortraitFromAlignedImage(SyntheticPortrait()), FrontalFit(), ctx),
                Cancelled);
-  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{}, Preset::kPreview, &ctx), Cancelled);
+  EXPECT_THROW(session.Animate(avatar, {}, ViewPose{}, RenderMode::kPreview, &ctx), Cancelled);
   // Progress is reported while reconstructing.
   std::vector<double> fractions;
   RunContext progress([&](const Progress& p) { fractions.push_back(p.fraction); });
@@ -417,12 +417,12 @@ TEST(Session, ConcurrentAnimateMatchesSerial) {
   };
   std::vector<Frame> serial;
   for (size_t i = 0; i < views.size(); ++i)
-    serial.push_back(session.Animate(avatar, expression(i), views[i], Preset::kStandard));
+    serial.push_back(session.Animate(avatar, expression(i), views[i], RenderMode::kStandard));
   // Every expression must change the frame, or the comparison below would not test it.
   for (size_t a = 0; a < 3; ++a) {
     for (size_t b = a + 1; b < 3; ++b) {
-      const Frame fa = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * a}}}, views[0], Preset::kStandard);
-      const Frame fb = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * b}}}, views[0], Preset::kStandard);
+      const Frame fa = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * a}}}, views[0], RenderMode::kStandard);
+      const Frame fb = session.Animate(avatar, Expression{{{"jawOpen", 0.5f * b}}}, views[0], RenderMode::kStandard);
       ASSERT_FALSE(same(fa, fb)) << "jawOpen " << 0.5 * a << " and " << 0.5 * b << " render the same";
     }
   }
@@ -432,7 +432,7 @@ TEST(Session, ConcurrentAnimateMatchesSerial) {
   for (int t = 0; t < 2; ++t) {
     threads.emplace_back([&, t] {
       for (size_t i = t; i < views.size(); i += 2) {
-        parallel[i] = session.Animate(avatar, expression(i), views[i], Preset::kStandard);
+        parallel[i] = session.Animate(avatar, expression(i), views[i], RenderMode::kStandard);
       }
     });
   }
@@ -448,19 +448,19 @@ TEST(Session, AnimateAtACameraLabel) {
   const Avatar avatar = MakeAvatar(session);
   // The orbit view and the same camera as a label are one render.
   const std::array<float, 25> front = testing::FrontalCameraLabel();
-  const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{}, Preset::kStandard);
-  const Frame b = session.Animate(avatar, {{{"smile", 0.5f}}}, front, Preset::kStandard);
+  const Frame a = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{}, RenderMode::kStandard);
+  const Frame b = session.Animate(avatar, {{{"smile", 0.5f}}}, front, RenderMode::kStandard);
   EXPECT_TRUE(SameMat(a.bgr, b.bgr));
   EXPECT_TRUE(SameMat(a.opacity, b.opacity));
   EXPECT_TRUE(SameMat(a.depth, b.depth));
-  const Frame c = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{25}, Preset::kStandard);
+  const Frame c = session.Animate(avatar, {{{"smile", 0.5f}}}, ViewPose{25}, RenderMode::kStandard);
   EXPECT_FALSE(SameMat(a.opacity, c.opacity));
   std::array<float, 25> bad = front;
   bad[0] = 2.0f;  // not a rotation
-  EXPECT_THROW(session.Animate(avatar, {}, bad, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(avatar, {}, bad, RenderMode::kPreview), InvalidInput);
   bad = front;
   bad[5] = std::nanf("");
-  EXPECT_THROW(session.Animate(avatar, {}, bad, Preset::kPreview), InvalidInput);
+  EXPECT_THROW(session.Animate(avatar, {}, bad, RenderMode::kPreview), InvalidInput);
 }
 
 // Frames render with the inference skips by default (RenderSettings, SessionOptions::render_skips)
@@ -477,8 +477,8 @@ TEST(Session, RenderSkipsAreOnByDefaultAndCloseToTheFullRender) {
   const Avatar avatar = MakeAvatar(skipping);
   for (const ViewPose& view : {ViewPose{}, ViewPose{35, -10}, ViewPose{170, 20}}) {
     SCOPED_TRACE(view.yaw);
-    const Frame a = full.Animate(avatar, {}, view, Preset::kStandard);
-    const Frame b = skipping.Animate(avatar, {}, view, Preset::kStandard);
+    const Frame a = full.Animate(avatar, {}, view, RenderMode::kStandard);
+    const Frame b = skipping.Animate(avatar, {}, view, RenderMode::kStandard);
     ASSERT_EQ(a.bgr.size(), b.bgr.size());
     cv::Mat diff;
     cv::absdiff(a.bgr, b.bgr, diff);

@@ -25,6 +25,7 @@
 #include "core/pipeline/session_source.h"
 #include "core/pipeline/source_analysis.h"
 #include "core/util/error.h"
+#include "common/sample_analysis.h"
 
 namespace avatar {
 namespace {
@@ -34,16 +35,7 @@ cv::Matx33d HeadMatrix(const ViewPose& pose) { return cv::Matx33d(render::HeadRo
 
 class SourceView : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() {
-    const cv::Mat photo = LoadImageBgr(
-        DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)"));
-    RunContext ctx;
-    analysis_ = new SourceAnalysis(AnalyseSource(photo, "", ctx));
-  }
-  static void TearDownTestSuite() {
-    delete analysis_;
-    analysis_ = nullptr;
-  }
+  static void SetUpTestSuite() { analysis_ = &testing::SampleAnalysis(); }
   static const morphable::MorphableModel& Model() { return *analysis_->model; }
   static MorphablePreviewSource Preview() {
     return MorphablePreviewSource(Model(), analysis_->morphable_fit, analysis_->texture);
@@ -65,9 +57,9 @@ class SourceView : public ::testing::Test {
     const double inter = cv::countNonZero(a & b), uni = cv::countNonZero(a | b);
     return uni > 0 ? inter / uni : 0.0;
   }
-  static SourceAnalysis* analysis_;
+  static const SourceAnalysis* analysis_;
 };
-SourceAnalysis* SourceView::analysis_ = nullptr;
+const SourceAnalysis* SourceView::analysis_ = nullptr;
 
 // The neutral expression of M_neu: zero coefficients, absolute.
 FrameExpression ZeroExpression() {
@@ -196,8 +188,8 @@ TEST_F(SourceView, AvatarFilesKeepCoefficientExpressions) {
   Expression e;
   e.coefficients.assign(Model().num_expression(), 0.1f);
   e.coefficients_absolute = true;
-  const Frame a = session.Animate(avatar, e, avatar.SourceCamera(), Preset::kStandard);
-  const Frame b = session.Animate(loaded, e, loaded.SourceCamera(), Preset::kStandard);
+  const Frame a = session.Animate(avatar, e, avatar.SourceCamera(), RenderMode::kStandard);
+  const Frame b = session.Animate(loaded, e, loaded.SourceCamera(), RenderMode::kStandard);
   EXPECT_EQ(cv::norm(a.bgr, b.bgr, cv::NORM_INF), 0.0);
   EXPECT_EQ(cv::norm(a.opacity, b.opacity, cv::NORM_INF), 0.0);
 }

@@ -17,7 +17,7 @@
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/io/video_io.h"
-#include "core/pipeline/dataset_build.h"
+#include "core/tools/dataset_build.h"
 #include "core/train/dataset.h"
 #include "core/util/error.h"
 

@@ -1,6 +1,11 @@
 // The panels and the export dialog: expression presets round-trip and refuse bad files with
 // the file's name, the driving options map to the core's, the dialog's choices become the
-// core's export plan and are remembered.
+// core's export plan and are remembered; the network size is named "Network size" (config) and
+// its setting falls back to the 0.1 key.
+#include <QAbstractButton>
+#include <QComboBox>
+#include <QLabel>
+#include <QRegularExpression>
 #include <QSettings>
 #include <QSignalSpy>
 #include <QSlider>
@@ -113,6 +118,53 @@ class PanelsTest : public QObject {
     QCOMPARE(QString::fromStdString(again.exportOptions().output), QStringLiteral("/tmp/frames_out"));
     QCOMPARE(QString::fromStdString(again.plan().view.mode), QStringLiteral("orbit"));
     QCOMPARE(again.plan().width, 256);
+  }
+
+  // Issue 31 (one word per idea): the network size is "Network size" / config, persisted as
+  // "source/config"; the 0.1 key "source/preset" is read while the new one is absent.
+  void networkSizeIsNamedConfigAndReadsTheOldSettingsKey() {
+    QSettings().remove(QStringLiteral("source/config"));
+    QSettings().setValue(QStringLiteral("source/preset"), QStringLiteral("paper"));
+    {
+      SourcePanel panel;
+      QCOMPARE(panel.config(), QStringLiteral("paper"));
+      QSignalSpy changed(&panel, &SourcePanel::configChanged);
+      panel.setConfig(QStringLiteral("lite"));
+      QCOMPARE(changed.count(), 1);
+      QCOMPARE(changed.at(0).at(0).toString(), QStringLiteral("lite"));
+      QCOMPARE(QSettings().value(QStringLiteral("source/config")).toString(), QStringLiteral("lite"));
+      QCOMPARE(panel.configBox()->objectName(), QStringLiteral("networkSize"));
+      bool labelled = false;
+      for (const QLabel* label : panel.findChildren<QLabel*>()) {
+        if (label->buddy() == panel.configBox()) labelled = label->text().remove('&') == QStringLiteral("Network size:");
+      }
+      QVERIFY(labelled);
+    }
+    SourcePanel again;  // The new key wins over the old one.
+    QCOMPARE(again.config(), QStringLiteral("lite"));
+    QSettings().remove(QStringLiteral("source/config"));
+    QSettings().remove(QStringLiteral("source/preset"));
+    SourcePanel fresh;  // Neither key: the default.
+    QCOMPARE(fresh.config(), QStringLiteral("lite"));
+
+    ExportDialog dialog(false, QStringLiteral("paper"));
+    const auto* shown = dialog.findChild<QLabel*>(QStringLiteral("networkSizeLabel"));
+    QVERIFY(shown != nullptr);
+    QCOMPARE(shown->text(), QStringLiteral("Network size: paper"));
+
+    // "preset" is left to expression presets in the widgets' texts and tooltips.
+    const QRegularExpression preset(QStringLiteral("preset"), QRegularExpression::CaseInsensitiveOption);
+    for (QWidget* root : std::initializer_list<QWidget*>{&fresh, &dialog}) {
+      for (const QWidget* w : root->findChildren<QWidget*>()) {
+        QString text = w->toolTip();
+        if (const auto* label = qobject_cast<const QLabel*>(w)) text += " " + label->text();
+        if (const auto* button = qobject_cast<const QAbstractButton*>(w)) text += " " + button->text();
+        if (const auto* box = qobject_cast<const QComboBox*>(w)) {
+          for (int i = 0; i < box->count(); ++i) text += " " + box->itemText(i);
+        }
+        QVERIFY2(!text.contains(preset), qPrintable(w->objectName() + ": " + text));
+      }
+    }
   }
 };
 

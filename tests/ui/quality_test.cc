@@ -1,5 +1,5 @@
 // The quality ladder in the studio, on a tiny random-weight checkpoint under Xvfb: before the
-// first use every preset says "not measured yet"; picking `fine` and reconstructing the sample
+// first use every level says "not measured yet"; picking `fine` and reconstructing the sample
 // portrait runs the refinement on the job worker (its progress reaches the window), measures the
 // ladder once (every entry then shows its estimates, cached for the next window) and shows a
 // refined avatar; a `best` reconstruction can be cancelled during its refinement and leaves the
@@ -139,7 +139,7 @@ class QualityTest : public QObject {
     QVERIFY2(QString::fromStdString(neural->Label()).contains(QStringLiteral("refined on the photo")),
              qPrintable(QString::fromStdString(neural->Label())));
 
-    // The ladder now shows this machine's estimates beside every preset.
+    // The ladder now shows this machine's estimates beside every level.
     QVERIFY(estimates.count() >= 1);
     QVERIFY(w->qualityEstimates().has_value());
     QVERIFY(w->qualityEstimates()->Complete());

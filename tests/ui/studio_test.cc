@@ -12,6 +12,7 @@
 #include <QComboBox>
 #include <QDockWidget>
 #include <QDropEvent>
+#include <QLabel>
 #include <QMenuBar>
 #include <QMimeData>
 #include <QScreen>
@@ -375,12 +376,16 @@ class StudioTest : public QObject {
   }
 
   void settingsPersist() {
-    window_->sourcePanel()->setPreset(QStringLiteral("paper"));
+    window_->sourcePanel()->setConfig(QStringLiteral("paper"));
+    // The status bar names the network size (issue 31: not "preset").
+    const auto* size_label = window_->findChild<QLabel*>(QStringLiteral("networkSizeLabel"));
+    QVERIFY(size_label != nullptr);
+    QCOMPARE(size_label->text(), QStringLiteral("Network size: paper"));
     window_->close();
     MainWindow again;
-    QCOMPARE(again.sourcePanel()->preset(), QStringLiteral("paper"));
+    QCOMPARE(again.sourcePanel()->config(), QStringLiteral("paper"));
     QCOMPARE(again.size(), QSize(1280, 720));
-    again.sourcePanel()->setPreset(QStringLiteral("lite"));
+    again.sourcePanel()->setConfig(QStringLiteral("lite"));
   }
 };
 

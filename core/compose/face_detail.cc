@@ -1,0 +1,160 @@
+#include "core/compose/face_detail.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <opencv2/imgproc.hpp>
+
+#include "core/morphable/rasterizer.h"
+#include "core/render/view_pose.h"
+#include "core/util/error.h"
+
+namespace avatar::compose {
+namespace {
+
+// Camera-space points and their screen vertices (pixel position, depth) for `size`.
+void Project(const morphable::PinholeCamera& cam, const std::vector<cv::Point3f>& world, cv::Size size,
+             std::vector<cv::Vec3d>* camera_points, std::vector<morphable::ScreenVertex>* screen) {
+  camera_points->resize(world.size());
+  screen->resize(world.size());
+  for (size_t i = 0; i < world.size(); ++i) {
+    (*camera_points)[i] = cam.ToCamera(cv::Vec3d(world[i].x, world[i].y, world[i].z));
+    const cv::Point2d px = cam.ToPixel((*camera_points)[i], size);
+    (*screen)[i] = {px.x, px.y, (*camera_points)[i][2]};
+  }
+}
+
+}  // namespace
+
+void FaceDetailOptions::Validate() const {
+  AVATAR_CHECK_OPTION(std::isfinite(depth_tolerance) && depth_tolerance > 0.0 && depth_tolerance < 1.0)
+      << "the detail depth tolerance must be in (0, 1), got " << depth_tolerance;
+  AVATAR_CHECK_OPTION(std::isfinite(min_matte) && min_matte >= 0.0f && min_matte <= 1.0f)
+      << "the detail matte threshold must be in [0, 1], got " << min_matte;
+  AVATAR_CHECK_OPTION(std::isfinite(feather) && feather >= 0.0 && feather <= 0.25)
+      << "the detail feather must be in [0, 0.25], got " << feather;
+  AVATAR_CHECK_OPTION(std::isfinite(same_expression) && same_expression >= 0.0f)
+      << "the same-expression threshold must be >= 0, got " << same_expression;
+}
+
+FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitResult fit, cv::Mat photo, cv::Mat matte,
+                       cv::Mat eye_mouth, const FaceDetailOptions& options)
+    : model_(model),
+      fit_(std::move(fit)),
+      photo_(std::move(photo)),
+      matte_(std::move(matte)),
+      eye_mouth_(std::move(eye_mouth)),
+      options_(options) {
+  options_.Validate();
+  AVATAR_CHECK_INPUT(!photo_.empty() && photo_.type() == CV_8UC3) << "the detail photo must be an 8-bit BGR image";
+  AVATAR_CHECK_INPUT(photo_.size() == fit_.image_size)
+      << "the detail photo is " << photo_.cols << "x" << photo_.rows << " but the fit refers to "
+      << fit_.image_size.width << "x" << fit_.image_size.height;
+  if (matte_.empty()) matte_ = cv::Mat(photo_.size(), CV_32FC1, cv::Scalar(1.0f));
+  if (eye_mouth_.empty()) eye_mouth_ = cv::Mat::zeros(photo_.size(), CV_8UC1);
+  AVATAR_CHECK_INPUT(matte_.type() == CV_32FC1 && matte_.size() == photo_.size())
+      << "the detail matte must be CV_32FC1 of the photo's size";
+  AVATAR_CHECK_INPUT(eye_mouth_.type() == CV_8UC1 && eye_mouth_.size() == photo_.size())
+      << "the detail eye/mouth mask must be CV_8UC1 of the photo's size";
+  AVATAR_CHECK_INPUT(static_cast<int>(fit_.beta.size()) == model_.num_expression() &&
+                     static_cast<int>(fit_.alpha.size()) == model_.num_identity())
+      << "the fit does not belong to this morphable model";
+  source_world_ = morphable::WorldVertices(model_, fit_);
+  const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(fit_.camera);
+  std::vector<cv::Vec3d> camera_points;
+  std::vector<morphable::ScreenVertex> screen;
+  Project(cam, source_world_, photo_.size(), &camera_points, &screen);
+  source_depth_ = morphable::Rasterize(screen, model_.topology().triangles, photo_.size()).depth;
+}
+
+FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable::Beta& beta, cv::Size size) const {
+  AVATAR_CHECK_INPUT(static_cast<int>(beta.size()) == model_.num_expression())
+      << "detail: " << beta.size() << " expression coefficients for a model with " << model_.num_expression();
+  AVATAR_CHECK_INPUT(size.width >= 1 && size.height >= 1) << "detail: empty output size";
+  float change = 0.0f;
+  for (size_t k = 0; k < beta.size(); ++k) {
+    AVATAR_CHECK_INPUT(std::isfinite(beta[k])) << "detail: expression coefficient " << k << " is not finite";
+    change = std::max(change, std::abs(beta[k] - fit_.beta[k]));
+  }
+  const bool same_expression = change <= options_.same_expression;
+
+  const morphable::PinholeCamera target_cam = morphable::PinholeCamera::FromLabel(camera);
+  const morphable::PinholeCamera source_cam = morphable::PinholeCamera::FromLabel(fit_.camera);
+  const std::vector<cv::Point3f> target_world = morphable::WorldVertices(model_, fit_, &beta);
+  std::vector<cv::Vec3d> target_points;
+  std::vector<morphable::ScreenVertex> target_screen;
+  Project(target_cam, target_world, size, &target_points, &target_screen);
+  const morphable::RasterBuffers raster = morphable::Rasterize(target_screen, model_.topology().triangles, size);
+
+  const auto& triangles = model_.topology().triangles;
+  const double tolerance = options_.depth_tolerance * render::kCameraRadius;
+  cv::Mat map_x(size, CV_32FC1, cv::Scalar(-1.0f)), map_y(size, CV_32FC1, cv::Scalar(-1.0f));
+  FaceWarp out;
+  out.valid = cv::Mat::zeros(size, CV_8UC1);
+  out.face = cv::Mat::zeros(size, CV_8UC1);
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const int t = raster.triangle.at<int>(y, x);
+      if (t < 0) continue;
+      out.face.at<uchar>(y, x) = 255;
+      const cv::Vec3f b = raster.bary.at<cv::Vec3f>(y, x);
+      const cv::Vec3i& f = triangles[t];
+      // The same surface point of the mesh at the source expression, seen by the source camera.
+      cv::Vec3d world(0, 0, 0);
+      for (int k = 0; k < 3; ++k) {
+        const cv::Point3f& v = source_world_[f[k]];
+        world += static_cast<double>(b[k]) * cv::Vec3d(v.x, v.y, v.z);
+      }
+      const cv::Vec3d p = source_cam.ToCamera(world);
+      if (!(p[2] > 1e-6)) continue;
+      const cv::Point2d px = source_cam.ToPixel(p, photo_.size());
+      const int sx = static_cast<int>(std::floor(px.x)), sy = static_cast<int>(std::floor(px.y));
+      if (sx < 0 || sy < 0 || sx >= photo_.cols || sy >= photo_.rows) continue;
+      if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
+      if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
+      if (!same_expression && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
+      map_x.at<float>(y, x) = static_cast<float>(px.x - 0.5);  // pixel centres at i + 0.5
+      map_y.at<float>(y, x) = static_cast<float>(px.y - 0.5);
+      out.valid.at<uchar>(y, x) = 255;
+    }
+  }
+  cv::remap(photo_, out.bgr, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  out.bgr.setTo(cv::Scalar::all(0), out.valid == 0);
+  // Feather inwards: the weight reaches 1 a feather width inside the valid region, so the seam
+  // with the network render is soft and never shows the invalid (black) pixels.
+  cv::Mat valid_f;
+  out.valid.convertTo(valid_f, CV_32FC1, 1.0 / 255.0);
+  const int radius = static_cast<int>(std::lround(options_.feather * size.height));
+  if (radius >= 1) {
+    cv::Mat eroded;
+    cv::erode(valid_f, eroded, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)));
+    cv::GaussianBlur(eroded, out.weight, cv::Size(0, 0), radius / 2.0 + 0.5);
+    out.weight = out.weight.mul(valid_f);
+  } else {
+    out.weight = valid_f;
+  }
+  cv::min(cv::max(out.weight, 0.0), 1.0, out.weight);
+  return out;
+}
+
+cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha) {
+  AVATAR_CHECK_INPUT(!base.empty() && base.type() == CV_8UC3 && base.size() == warp.bgr.size())
+      << "detail: the base frame must be BGR8 of the warp's size";
+  cv::Mat b, w, out;
+  base.convertTo(b, CV_32FC3);
+  warp.bgr.convertTo(w, CV_32FC3);
+  cv::Mat weight3;
+  cv::cvtColor(warp.weight, weight3, cv::COLOR_GRAY2BGR);
+  cv::Mat blended = b + weight3.mul(w - b);
+  blended.convertTo(out, CV_8UC3);  // rounds and saturates
+  if (alpha != nullptr && !alpha->empty()) {
+    AVATAR_CHECK_INPUT(alpha->type() == CV_8UC1 && alpha->size() == base.size()) << "detail: alpha must be CV_8UC1";
+    cv::Mat warp_alpha;
+    warp.weight.convertTo(warp_alpha, CV_8UC1, 255.0);
+    cv::max(*alpha, warp_alpha, *alpha);
+  }
+  return out;
+}
+
+}  // namespace avatar::compose

@@ -1,0 +1,72 @@
+#pragma once
+// The photo's own pixels carried to a new view and expression through the fitted morphable face
+// mesh (explicit correspondence): a target pixel covered by the mesh at the target camera and
+// expression looks up the same barycentric point of the mesh at the source camera and expression
+// in the aligned photo, when the photo saw that point (source depth test) and it belongs to the
+// person (matte). The photo's eyes and mouth are left out when the target expression differs
+// from the source's: they would carry the source expression along (they come from the network).
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "core/morphable/morphable.h"
+
+namespace avatar::compose {
+
+struct FaceDetailOptions {
+  // Depth tolerance of the visibility test, as a fraction of the camera distance (2.7).
+  double depth_tolerance = 0.01;
+  // Matte value below which a photo pixel is background.
+  float min_matte = 0.5f;
+  // Feather width of the warp's edge, as a fraction of the output height.
+  double feather = 0.02;
+  // Largest expression change (max |beta_target - beta_source|) at which the photo's eyes and
+  // mouth are still used.
+  float same_expression = 1e-3f;
+
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+// The photo warped to one target view, at the output size.
+struct FaceWarp {
+  cv::Mat bgr;     // [H,W] CV_8UC3 warped photo (black where not valid)
+  cv::Mat valid;   // [H,W] CV_8UC1 255 where the photo saw the target pixel's surface point
+  cv::Mat weight;  // [H,W] CV_32FC1 feathered blend weight in [0,1] (0 outside `valid`)
+  cv::Mat face;    // [H,W] CV_8UC1 255 where the face mesh covers the target pixel
+};
+
+class FaceDetail {
+ public:
+  // `photo` is the aligned crop the fit refers to (CV_8UC3, fit.image_size), `matte` its person
+  // matte (CV_32FC1 in [0,1], same size; empty = all person), `eye_mouth` its eye/mouth mask
+  // (CV_8UC1; empty = none). Renders the source view's depth once (the per-avatar bake). The
+  // model must outlive this object. Throws InvalidInput for mismatched sizes or types.
+  FaceDetail(const morphable::MorphableModel& model, morphable::FitResult fit, cv::Mat photo, cv::Mat matte,
+             cv::Mat eye_mouth, const FaceDetailOptions& options = {});
+
+  // The photo warped to `camera` with expression `beta` (the model's expression coefficients,
+  // absolute) at `size`. Outputs are finite; an empty result (all invalid) when the mesh is not
+  // in view. Throws InvalidInput for a wrong beta length or a bad camera.
+  FaceWarp Warp(const morphable::CameraLabel& camera, const morphable::Beta& beta, cv::Size size) const;
+
+  const morphable::FitResult& fit() const { return fit_; }
+
+ private:
+  const morphable::MorphableModel& model_;
+  morphable::FitResult fit_;
+  cv::Mat photo_;                          // CV_8UC3
+  cv::Mat matte_;                          // CV_32FC1
+  cv::Mat eye_mouth_;                      // CV_8UC1
+  FaceDetailOptions options_;
+  std::vector<cv::Point3f> source_world_;  // mesh at the source expression, world
+  cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
+};
+
+// Blends `warp` over `base` (CV_8UC3 of the same size): base where weight is 0, the warped photo
+// where it is 1. Returns the composite; `alpha` (CV_8UC1, may be empty) gets at least the warp's
+// weight where the face covers.
+cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha = nullptr);
+
+}  // namespace avatar::compose

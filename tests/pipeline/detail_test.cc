@@ -1,0 +1,137 @@
+// The source-guided detail path on the packaged sample portrait (real face analysis and fit):
+//  - at the source camera and expression the warp gives the photo back (it is a lookup of the
+//    photo at the points it saw): PSNR against the aligned crop inside the valid mask;
+//  - the valid region shrinks on the far side when the head turns, and the composite is the
+//    base frame outside the face;
+//  - hard cases: yaw 60, an expression change (eyes and mouth left to the base), tiny and large
+//    outputs: outputs finite, in range, masks consistent; bad options and inputs are refused.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "core/compose/face_detail.h"
+#include "core/io/data_paths.h"
+#include "core/io/image_io.h"
+#include "core/pipeline/detail_source.h"
+#include "core/pipeline/morphable_expression_source.h"
+#include "core/pipeline/morphable_preview.h"
+#include "core/pipeline/source_analysis.h"
+#include "core/util/error.h"
+#include "common/sample_analysis.h"
+
+namespace avatar {
+namespace {
+
+class Detail : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { analysis_ = &testing::SampleAnalysis(); }
+  static std::shared_ptr<const FrameSource> Base() {
+    return std::make_shared<MorphablePreviewSource>(*analysis_->model, analysis_->morphable_fit, analysis_->texture);
+  }
+  static double ValidFraction(const compose::FaceWarp& w) {
+    const int face = cv::countNonZero(w.face);
+    return face == 0 ? 0.0 : static_cast<double>(cv::countNonZero(w.valid)) / face;
+  }
+  static void ExpectSane(const compose::FaceWarp& w, cv::Size size) {
+    ASSERT_EQ(w.bgr.size(), size);
+    ASSERT_EQ(w.weight.type(), CV_32FC1);
+    double lo = 0, hi = 0;
+    cv::minMaxLoc(w.weight, &lo, &hi);
+    EXPECT_GE(lo, 0.0);
+    EXPECT_LE(hi, 1.0);
+    EXPECT_TRUE(cv::checkRange(w.weight));
+    // Weight only where valid, valid only where the face covers.
+    EXPECT_EQ(cv::countNonZero((w.weight > 0) & (w.valid == 0)), 0);
+    EXPECT_EQ(cv::countNonZero((w.valid != 0) & (w.face == 0)), 0);
+  }
+  static const SourceAnalysis* analysis_;
+};
+const SourceAnalysis* Detail::analysis_ = nullptr;
+
+TEST_F(Detail, SourceViewGivesThePhotoBack) {
+  const DetailFrameSource source(Base(), *analysis_);
+  FrameRequest request;
+  request.view = source.SourcePose();
+  request.width = request.height = 512;
+  const compose::FaceWarp w = source.Warp(request);
+  ExpectSane(w, cv::Size(512, 512));
+  // The photo saw (nearly) all of the face from its own camera.
+  EXPECT_GT(ValidFraction(w), 0.9);
+  const double psnr = cv::PSNR(w.bgr, analysis_->portrait.image_unmatted, 255.0);  // whole image
+  cv::Mat a, b;
+  w.bgr.copyTo(a, w.valid);
+  analysis_->portrait.image_unmatted.copyTo(b, w.valid);
+  const double valid_psnr = cv::PSNR(a, b, 255.0);
+  std::cout << "[detail] source view: valid " << ValidFraction(w) << " of the face, PSNR in the valid mask "
+            << valid_psnr << " dB (whole image " << psnr << " dB)\n";
+  // A bilinear lookup at the pixel's own position: only rounding and the mesh's edge pixels differ.
+  EXPECT_GT(valid_psnr, 35.0);
+}
+
+TEST_F(Detail, TurningShrinksTheVisiblePartAndKeepsTheBaseOutsideTheFace) {
+  const DetailFrameSource source(Base(), *analysis_);
+  FrameRequest request;
+  request.width = request.height = 256;
+  request.view = source.SourcePose();
+  const double front = ValidFraction(source.Warp(request));
+  request.view.yaw += 40.0;
+  const compose::FaceWarp turned = source.Warp(request);
+  ExpectSane(turned, cv::Size(256, 256));
+  EXPECT_LT(ValidFraction(turned), front);
+  EXPECT_GT(ValidFraction(turned), 0.3);
+  RunContext ctx;
+  const RenderedFrame base = source.base().Render(request, ctx);
+  const RenderedFrame frame = source.Render(request, ctx);
+  ASSERT_EQ(frame.bgr.size(), base.bgr.size());
+  cv::Mat diff;
+  cv::absdiff(frame.bgr, base.bgr, diff);
+  cv::cvtColor(diff, diff, cv::COLOR_BGR2GRAY);
+  EXPECT_EQ(cv::countNonZero(diff & (turned.weight == 0)), 0) << "pixels changed outside the warp's weight";
+  EXPECT_GT(cv::countNonZero(diff), 0) << "the photo's detail changed nothing";
+  EXPECT_NE(source.Label().find(kDetailLabel), std::string::npos);
+}
+
+TEST_F(Detail, HardCasesStayFiniteAndInRange) {
+  const DetailFrameSource source(Base(), *analysis_);
+  FrameRequest request;
+  request.view = source.SourcePose();
+  for (const int size : {16, 64, 1024}) {
+    request.width = request.height = size;
+    ExpectSane(source.Warp(request), cv::Size(size, size));
+  }
+  request.width = request.height = 128;
+  request.view.yaw += 60.0;
+  const compose::FaceWarp far = source.Warp(request);
+  ExpectSane(far, cv::Size(128, 128));
+  // An expression change: the photo's eyes and mouth are not used.
+  request.view = source.SourcePose();
+  const double same = ValidFraction(source.Warp(request));
+  request.expression.controls["jawOpen"] = 0.9f;
+  request.expression.controls["eyesWide"] = 1.0f;
+  const compose::FaceWarp changed = source.Warp(request);
+  ExpectSane(changed, cv::Size(128, 128));
+  EXPECT_LT(ValidFraction(changed), same);
+}
+
+TEST_F(Detail, BadInputsAreRefused) {
+  compose::FaceDetailOptions options;
+  options.feather = -1.0;
+  EXPECT_THROW(options.Validate(), InvalidOptions);
+  EXPECT_THROW(ValidateDetailMode("sharp"), InvalidOptions);
+  EXPECT_NO_THROW(ValidateDetailMode("face"));
+  const morphable::MorphableModel& model = *analysis_->model;
+  EXPECT_THROW(compose::FaceDetail(model, analysis_->morphable_fit, cv::Mat(), cv::Mat(), cv::Mat()), InvalidInput);
+  EXPECT_THROW(compose::FaceDetail(model, analysis_->morphable_fit, cv::Mat(100, 100, CV_8UC3), cv::Mat(), cv::Mat()),
+               InvalidInput);
+  const compose::FaceDetail detail(model, analysis_->morphable_fit, analysis_->portrait.image_unmatted, cv::Mat(),
+                                   cv::Mat());
+  EXPECT_THROW(detail.Warp(analysis_->morphable_fit.camera, morphable::Beta(3, 0.0f), cv::Size(64, 64)), InvalidInput);
+  morphable::Beta nan_beta = analysis_->morphable_fit.beta;
+  nan_beta[0] = std::nanf("");
+  EXPECT_THROW(detail.Warp(analysis_->morphable_fit.camera, nan_beta, cv::Size(64, 64)), InvalidInput);
+}
+
+}  // namespace
+}  // namespace avatar
