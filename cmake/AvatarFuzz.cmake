@@ -18,34 +18,7 @@ set(AVATAR_FUZZ_COMPILE_FLAGS -fsanitize=fuzzer-no-link,address,undefined -fno-s
                               -fno-omit-frame-pointer -g -O1)
 set(AVATAR_FUZZ_LINK_FLAGS -fsanitize=address,undefined -fno-sanitize=vptr)
 
-# The parsers and what they need (follow the includes of each parser; keep this list small).
-set(AVATAR_FUZZ_SOURCES
-  core/util/error.cc
-  core/util/logging.cc
-  core/util/options.cc
-  core/util/run_context.cc
-  core/io/atomic_file.cc
-  core/io/data_paths.cc
-  core/io/resources.cc
-  core/io/image_io.cc
-  core/io/video_io.cc
-  core/io/tfjs_graph.cc
-  core/io/keras_layers.cc
-  core/model/checkpoint.cc
-  core/model/model_config.cc
-  core/face/identity_net.cc
-  core/face/head_pose_net.cc
-  core/face/face_geometry.cc
-  core/face/image_tensor.cc
-  core/pipeline/avatar_file.cc
-  core/pipeline/driving.cc
-  core/pipeline/expression.cc
-  core/pipeline/expression_preset.cc
-  core/render/view_pose.cc
-  core/train/dataset.cc
-  core/train/shard_check.cc
-  core/train/sample.cc
-)
+include(${PROJECT_SOURCE_DIR}/cmake/AvatarFuzzSources.cmake)  # AVATAR_FUZZ_SOURCES
 list(TRANSFORM AVATAR_FUZZ_SOURCES PREPEND "${PROJECT_SOURCE_DIR}/")
 
 configure_file(core/util/version.h.in ${PROJECT_BINARY_DIR}/generated/core/util/version.h @ONLY)
