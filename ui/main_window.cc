@@ -134,6 +134,7 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
   connect(jobs_, &JobRunner::finished, this, [this](const QString& title) {
     onJobEnded();
     if (title == kReconstructTitle) {
+      with_detail_.reset();
       setFrameSource(built_);
       built_.reset();
       if (measured_) {
@@ -199,6 +200,7 @@ void MainWindow::createPanels() {
     showCachedQualityEstimates();
   });
   connect(source_panel_->randomWeightsBox(), &QCheckBox::toggled, this, [this] { showCachedQualityEstimates(); });
+  connect(source_panel_, &SourcePanel::detailChanged, this, &MainWindow::applyDetailSwitch);
   connect(source_panel_, &SourcePanel::qualityChanged, this, [this](const QString& quality) {
     if (source_) status_label_->setText(tr("Quality %1 applies from the next reconstruction (Ctrl+R)").arg(quality));
   });
@@ -365,7 +367,23 @@ BackendOptions MainWindow::backendOptions() const {
   o.renderer = source_panel_->morphablePreview() ? "morphable" : "neural";
   o.checkpoint = checkpoint_.toStdString();
   o.quality = source_panel_->quality().toStdString();
+  o.detail = source_panel_->photoDetail() ? "head" : "off";
   return o;
+}
+
+void MainWindow::applyDetailSwitch(bool on) {
+  if (!source_) return;
+  // The detail path wraps the network's source: switching it off shows the wrapped source at
+  // once, and switching it back on restores the wrapper kept from the last reconstruction.
+  const std::shared_ptr<const FrameSource> inner = source_->Wrapped();
+  if (!on && inner != nullptr) {
+    with_detail_ = source_;
+    setFrameSource(inner);
+  } else if (on && with_detail_ != nullptr && with_detail_->Wrapped() == source_) {
+    setFrameSource(with_detail_);
+  } else if (on && inner == nullptr && dynamic_cast<const SessionFrameSource*>(source_.get()) != nullptr) {
+    status_label_->setText(tr("The photo's detail applies from the next reconstruction (Ctrl+R)"));
+  }
 }
 
 void MainWindow::setCheckpoint(const QString& path) {
@@ -456,7 +474,7 @@ bool MainWindow::reconstruct() {
     } catch (const InvalidInput& e) {
       throw InvalidInput(name + ": " + e.what());
     }
-    if (session != nullptr && dynamic_cast<const SessionFrameSource*>(built_.get()) != nullptr) {
+    if (session != nullptr && dynamic_cast<const SessionFrameSource*>(&Unwrapped(*built_)) != nullptr) {
       // The ladder's estimates: cached, or measured once on this machine (first use of the model).
       RunContext::ProgressRange range(ctx, 0.85, 1.0);
       RefineOptions refine;

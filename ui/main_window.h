@@ -53,6 +53,9 @@ class MainWindow : public QMainWindow {
   bool openPortrait(const QString& path, bool reconstruct = true);
   // Starts reconstruction of the loaded portrait on the job worker (false if busy/none).
   bool reconstruct();
+  // The studio switch "Photo detail on the head": shows the detail path or the network render
+  // alone, at once when the last reconstruction built the detail path.
+  void applyDetailSwitch(bool on);
   // Whether opening a portrait (File > Open, recent files, drag and drop, --open) starts its
   // reconstruction at once: Avatar > Reconstruct on Open, kept in the settings (default on).
   // Off, the photo stays in the viewport until Reconstruct is chosen (useful with the slow
@@ -169,6 +172,8 @@ class MainWindow : public QMainWindow {
   cv::Mat portrait_;                           // BGR8 of the loaded portrait.
   std::shared_ptr<const FrameSource> source_;  // What the viewport renders.
   std::shared_ptr<const FrameSource> built_;   // Written by the reconstruction job.
+  // The detail path's source of the last reconstruction while the studio switch shows its base.
+  std::shared_ptr<const FrameSource> with_detail_;
   QString export_output_;
   std::atomic<qint64> export_frames_{0};  // Written by the export job.
   quint64 last_request_ = 0;

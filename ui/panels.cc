@@ -124,6 +124,17 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
           [](bool on) { QSettings().setValue("source/morphablePreview", on); });
   layout->addWidget(morphable_preview_);
 
+  photo_detail_ = new QCheckBox(tr("Photo &detail on the head"), this);
+  photo_detail_->setToolTip(
+      tr("Warps the portrait's own pixels onto the neural head where the photo saw it (sharp, looks like "
+         "the person); off shows the plain network render at once. (Alt+D)"));
+  photo_detail_->setChecked(QSettings().value("source/photoDetail", true).toBool());
+  connect(photo_detail_, &QCheckBox::toggled, this, [this](bool on) {
+    QSettings().setValue("source/photoDetail", on);
+    emit detailChanged(on);
+  });
+  layout->addWidget(photo_detail_);
+
   random_weights_ = new QCheckBox(tr("Use &random network weights"), this);
   random_weights_->setToolTip(
       tr("Runs the untrained neural network with random weights: a plumbing check whose frames are NOT a "
@@ -183,6 +194,8 @@ void SourcePanel::setQualityEstimates(const std::optional<QualityEstimates>& est
 
 bool SourcePanel::randomWeights() const { return random_weights_->isChecked(); }
 bool SourcePanel::morphablePreview() const { return morphable_preview_->isChecked(); }
+
+bool SourcePanel::photoDetail() const { return photo_detail_->isChecked(); }
 
 // ---------------------------------------------------------------------------- PosePanel
 

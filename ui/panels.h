@@ -53,11 +53,15 @@ class SourcePanel : public QWidget {
   QPushButton* reconstructButton() const { return reconstruct_; }
   QCheckBox* randomWeightsBox() const { return random_weights_; }
   QCheckBox* morphablePreviewBox() const { return morphable_preview_; }
+  // The photo's own detail over the neural head (BackendOptions::detail "head"), else "off".
+  bool photoDetail() const;
+  QCheckBox* photoDetailBox() const { return photo_detail_; }
 
  signals:
   void reconstructRequested();
   void configChanged(const QString& config);
   void qualityChanged(const QString& quality);
+  void detailChanged(bool on);
 
  private:
   void redraw();
@@ -67,6 +71,7 @@ class SourcePanel : public QWidget {
   QComboBox* quality_ = nullptr;
   QCheckBox* random_weights_ = nullptr;
   QCheckBox* morphable_preview_ = nullptr;
+  QCheckBox* photo_detail_ = nullptr;
   QPushButton* reconstruct_ = nullptr;
   QImage portrait_;
   SourceOverlay overlay_;

@@ -113,7 +113,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
       if (sx < 0 || sy < 0 || sx >= photo_.cols || sy >= photo_.rows) continue;
       if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
       if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
-      if (!same_expression && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
+      if (!same_expression && !options_.eyes_mouth_from_photo && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
       map_x.at<float>(y, x) = static_cast<float>(px.x - 0.5);  // pixel centres at i + 0.5
       map_y.at<float>(y, x) = static_cast<float>(px.y - 0.5);
       out.valid.at<uchar>(y, x) = 255;
@@ -121,21 +121,27 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   }
   cv::remap(photo_, out.bgr, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
   out.bgr.setTo(cv::Scalar::all(0), out.valid == 0);
+  out.weight = FeatheredWeight(out.valid, options_.feather);
+  return out;
+}
+
+cv::Mat FeatheredWeight(const cv::Mat& valid, double feather) {
+  AVATAR_CHECK_INPUT(!valid.empty() && valid.type() == CV_8UC1) << "detail: the valid mask must be CV_8UC1";
   // Feather inwards: the weight reaches 1 a feather width inside the valid region, so the seam
-  // with the network render is soft and never shows the invalid (black) pixels.
-  cv::Mat valid_f;
-  out.valid.convertTo(valid_f, CV_32FC1, 1.0 / 255.0);
-  const int radius = static_cast<int>(std::lround(options_.feather * size.height));
+  // with the frame below is soft and never shows the invalid (black) pixels.
+  cv::Mat valid_f, weight;
+  valid.convertTo(valid_f, CV_32FC1, 1.0 / 255.0);
+  const int radius = static_cast<int>(std::lround(feather * valid.rows));
   if (radius >= 1) {
     cv::Mat eroded;
     cv::erode(valid_f, eroded, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)));
-    cv::GaussianBlur(eroded, out.weight, cv::Size(0, 0), radius / 2.0 + 0.5);
-    out.weight = out.weight.mul(valid_f);
+    cv::GaussianBlur(eroded, weight, cv::Size(0, 0), radius / 2.0 + 0.5);
+    weight = weight.mul(valid_f);
   } else {
-    out.weight = valid_f;
+    weight = valid_f;
   }
-  cv::min(cv::max(out.weight, 0.0), 1.0, out.weight);
-  return out;
+  cv::min(cv::max(weight, 0.0), 1.0, weight);
+  return weight;
 }
 
 cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha) {

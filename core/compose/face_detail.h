@@ -3,8 +3,8 @@
 // mesh (explicit correspondence): a target pixel covered by the mesh at the target camera and
 // expression looks up the same barycentric point of the mesh at the source camera and expression
 // in the aligned photo, when the photo saw that point (source depth test) and it belongs to the
-// person (matte). The photo's eyes and mouth are left out when the target expression differs
-// from the source's: they would carry the source expression along (they come from the network).
+// person (matte). Under a new expression the photo's eyes and mouth follow the mesh, or, with
+// eyes_mouth_from_photo off, are left to the base frame (the network's expression branch).
 
 #include <vector>
 
@@ -20,10 +20,14 @@ struct FaceDetailOptions {
   // Matte value below which a photo pixel is background.
   float min_matte = 0.5f;
   // Feather width of the warp's edge, as a fraction of the output height.
-  double feather = 0.02;
+  double feather = 0.01;
   // Largest expression change (max |beta_target - beta_source|) at which the photo's eyes and
   // mouth are still used.
   float same_expression = 1e-3f;
+  // Under a new expression the photo's eyes and mouth follow the face mesh (true: the lips part
+  // and the eyes close with the mesh, as in the morphable preview) or are left to the base frame
+  // (false: the network's expression branch draws them).
+  bool eyes_mouth_from_photo = true;
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -63,6 +67,10 @@ class FaceDetail {
   std::vector<cv::Point3f> source_world_;  // mesh at the source expression, world
   cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
 };
+
+// The blend weight of a valid mask (CV_8UC1, 255 = valid): 0 outside, rising to 1 over
+// `feather` x height inside (CV_32FC1 in [0,1]).
+cv::Mat FeatheredWeight(const cv::Mat& valid, double feather);
 
 // Blends `warp` over `base` (CV_8UC3 of the same size): base where weight is 0, the warped photo
 // where it is 1. Returns the composite; `alpha` (CV_8UC1, may be empty) gets at least the warp's

@@ -2,6 +2,7 @@
 
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/util/error.h"
+#include "core/util/logging.h"
 
 namespace avatar {
 namespace {
@@ -14,7 +15,7 @@ const morphable::MorphableModel& ModelOf(const SourceAnalysis& analysis) {
 }  // namespace
 
 const std::vector<std::string>& DetailModes() {
-  static const std::vector<std::string> modes = {"face", "off"};
+  static const std::vector<std::string> modes = {"head", "face", "off"};
   return modes;
 }
 
@@ -22,20 +23,53 @@ void ValidateDetailMode(const std::string& mode) {
   for (const auto& m : DetailModes()) {
     if (m == mode) return;
   }
-  throw InvalidOptions("--detail must be face or off, got '" + mode + "'");
+  throw InvalidOptions("--detail must be head, face or off, got '" + mode + "'");
+}
+
+void DetailOptions::Validate() const {
+  AVATAR_CHECK_OPTION(mode == "head" || mode == "face") << "a detail source's mode must be head or face, got '" << mode
+                                                        << "'";
+  face.Validate();
+  depth.Validate();
+  AVATAR_CHECK_OPTION(source_depth_size >= 16 && source_depth_size <= 1024)
+      << "the source depth size must be within 16..1024, got " << source_depth_size;
+}
+
+std::string DetailLabel(const std::string& mode) {
+  return std::string(kDetailLabel) + (mode == "head" ? " on the head" : " on the face");
 }
 
 DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, const SourceAnalysis& analysis,
-                                     const compose::FaceDetailOptions& options)
+                                     const DetailOptions& options)
     : base_(std::move(base)),
       model_(analysis.model),
       detail_(ModelOf(analysis), analysis.morphable_fit, analysis.portrait.image_unmatted, analysis.portrait.matte,
-              analysis.portrait.eye_mouth_mask, options) {
+              analysis.portrait.eye_mouth_mask, options.face),
+      options_(options) {
   AVATAR_CHECK_INPUT(base_ != nullptr) << "detail: no base frame source";
-  SetWarnings(base_->Warnings());
+  options_.Validate();
+  std::vector<std::string> warnings = base_->Warnings();
+  if (options_.mode == "head") {
+    // The proxy of hair, ears and neck: the base's own depth at the photo's view.
+    FrameRequest source_view;
+    source_view.view = base_->SourcePose();
+    source_view.width = source_view.height = options_.source_depth_size;
+    RunContext ctx;
+    const RenderedFrame frame = base_->Render(source_view, ctx);
+    compose::ViewDepth depth{CameraForView(source_view.view, detail_.fit().camera), frame.depth};
+    try {
+      if (frame.depth.empty()) throw InvalidInput("the head renderer gives no depth");
+      depth_ = std::make_unique<compose::DepthDetail>(analysis.portrait.image_unmatted, analysis.portrait.matte,
+                                                      std::move(depth), options_.depth);
+    } catch (const InvalidInput& e) {
+      warnings.push_back(std::string("The photo's detail covers the face only: ") + e.what() + ".");
+      AVATAR_LOG(kWarning) << warnings.back();
+    }
+  }
+  SetWarnings(std::move(warnings));
 }
 
-std::string DetailFrameSource::Label() const { return base_->Label() + kDetailLabel; }
+std::string DetailFrameSource::Label() const { return base_->Label() + DetailLabel(options_.mode); }
 
 compose::FaceWarp DetailFrameSource::Warp(const FrameRequest& request) const {
   const CameraLabel25 camera = CameraForView(request.view, detail_.fit().camera);
@@ -43,9 +77,24 @@ compose::FaceWarp DetailFrameSource::Warp(const FrameRequest& request) const {
   return detail_.Warp(camera, beta, cv::Size(request.width, request.height));
 }
 
+compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const {
+  const cv::Size size(request.width, request.height);
+  if (depth_ == nullptr || base_frame.depth.empty() || base_frame.alpha.empty()) {
+    compose::FaceWarp none;
+    none.bgr = cv::Mat::zeros(size, CV_8UC3);
+    none.valid = cv::Mat::zeros(size, CV_8UC1);
+    none.face = cv::Mat::zeros(size, CV_8UC1);
+    none.weight = cv::Mat::zeros(size, CV_32FC1);
+    return none;
+  }
+  const compose::ViewDepth target{CameraForView(request.view, detail_.fit().camera), base_frame.depth};
+  return depth_->Warp(target, base_frame.alpha);
+}
+
 RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext& ctx) const {
   RenderedFrame frame = base_->Render(request, ctx);
   ctx.ThrowIfCancelled();
+  if (depth_ != nullptr) frame.bgr = compose::Composite(frame.bgr, DepthWarp(request, frame), &frame.alpha);
   const compose::FaceWarp warp = Warp(request);
   frame.bgr = compose::Composite(frame.bgr, warp, &frame.alpha);
   return frame;

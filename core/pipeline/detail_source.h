@@ -9,24 +9,38 @@
 #include <string>
 #include <vector>
 
+#include "core/compose/depth_detail.h"
 #include "core/compose/face_detail.h"
 #include "core/pipeline/frame_source.h"
 #include "core/pipeline/source_analysis.h"
 
 namespace avatar {
 
-// The detail paths a frame can take: "face" (the photo warped through the face mesh) or "off"
-// (the base source alone).
+// The detail paths a frame can take: "head" (the photo warped through the face mesh on the
+// face, and through the network's own depth on hair, ears and neck), "face" (the face mesh only)
+// or "off" (the base source alone).
 const std::vector<std::string>& DetailModes();
 // Throws InvalidOptions naming the choices for anything else.
 void ValidateDetailMode(const std::string& mode);
+
+struct DetailOptions {
+  std::string mode = "head";  // head or face (off: do not wrap)
+  compose::FaceDetailOptions face;
+  compose::DepthDetailOptions depth;
+  // Size of the base render whose depth is the source view's proxy (once per source).
+  int source_depth_size = 128;
+  // Throws InvalidOptions.
+  void Validate() const;
+};
 
 class DetailFrameSource : public FrameSource {
  public:
   // `base` renders the head; `analysis` is the portrait's (its fit, aligned photo, matte and
   // eye/mouth mask); its morphable model must outlive the source. Throws InvalidInput.
+  // With mode "head" the base's depth at the source view is rendered once here: a base without
+  // depth, or with nothing opaque there, keeps the face mesh only and says so in Warnings().
   DetailFrameSource(std::shared_ptr<const FrameSource> base, const SourceAnalysis& analysis,
-                    const compose::FaceDetailOptions& options = {});
+                    const DetailOptions& options = {});
 
   std::string Label() const override;
   bool SupportsPose() const override { return base_->SupportsPose(); }
@@ -36,17 +50,25 @@ class DetailFrameSource : public FrameSource {
   SourceOverlay Overlay() const override { return base_->Overlay(); }
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
 
-  // The warp of one request alone (for tests and measurements).
+  // The face mesh's warp of one request alone (for tests and measurements).
   compose::FaceWarp Warp(const FrameRequest& request) const;
+  // The depth warp of a rendered base frame of `request` (all invalid without the depth proxy).
+  compose::FaceWarp DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const;
+  bool HasDepthProxy() const { return depth_ != nullptr; }
   const FrameSource& base() const { return *base_; }
+  std::shared_ptr<const FrameSource> Wrapped() const override { return base_; }
 
  private:
   std::shared_ptr<const FrameSource> base_;
   const morphable::MorphableModel* model_;
   compose::FaceDetail detail_;
+  DetailOptions options_;
+  std::unique_ptr<compose::DepthDetail> depth_;
 };
 
-// The label suffix of frames with the detail path.
-inline constexpr const char* kDetailLabel = " + the photo's detail on the face";
+// The start of the label suffix of every frame with the detail path; DetailLabel(mode) is the
+// whole suffix (" + the photo's detail on the head" / "... on the face").
+inline constexpr const char* kDetailLabel = " + the photo's detail";
+std::string DetailLabel(const std::string& mode);
 
 }  // namespace avatar

@@ -27,4 +27,10 @@ RenderedFrame PortraitFrameSource::Render(const FrameRequest& request, RunContex
   return frame;
 }
 
+const FrameSource& Unwrapped(const FrameSource& source) {
+  const FrameSource* s = &source;
+  while (const std::shared_ptr<const FrameSource> inner = s->Wrapped()) s = inner.get();
+  return *s;
+}
+
 }  // namespace avatar

@@ -79,6 +79,9 @@ class FrameSource {
   // GUI thread holds the object (const, no hidden shared mutable state without a lock).
   // Throws InvalidOptions for sizes outside 16..4096, Cancelled through ctx.
   virtual RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const = 0;
+  // The frame source this one draws over (the photo's detail path wraps the neural avatar),
+  // or null for a source that renders by itself.
+  virtual std::shared_ptr<const FrameSource> Wrapped() const { return nullptr; }
 
   // What the user should know about the result, found while building the source (e.g. a small
   // face: the avatar will be soft); one sentence each, empty when all is well.
@@ -107,5 +110,8 @@ class PortraitFrameSource : public FrameSource {
 
 // Throws InvalidOptions unless 16 <= width, height <= 4096.
 void ValidateFrameSize(int width, int height);
+
+// The source that renders under every wrapper of `source` (Wrapped() followed to the end).
+const FrameSource& Unwrapped(const FrameSource& source);
 
 }  // namespace avatar

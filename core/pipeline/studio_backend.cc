@@ -8,6 +8,7 @@
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/morphable/morphable.h"
+#include "core/pipeline/detail_source.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/pipeline/quality.h"
 #include "core/pipeline/reconstruct.h"
@@ -79,7 +80,10 @@ std::shared_ptr<const FrameSource> NeuralAvatar(SourceAnalysis analysis, const B
                                                      r.analysis.overlay);
   if (r.render) source->SetRenderSettings(*r.render);
   source->SetWarnings(r.analysis.warnings);
-  return source;
+  if (options.detail == "off") return source;
+  DetailOptions detail;
+  detail.mode = options.detail;
+  return std::make_shared<DetailFrameSource>(std::move(source), r.analysis, detail);
 }
 
 }  // namespace
@@ -107,6 +111,7 @@ void BackendOptions::Validate() const {
   AVATAR_CHECK_OPTION(config == "lite" || config == "paper")
       << "--config must be lite or paper, got '" << config << "'";
   if (!quality.empty()) QualityLevelByName(quality);
+  ValidateDetailMode(detail);
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,
@@ -147,6 +152,31 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
     return MorphablePreview(analysis, std::string(kMorphablePreviewLabel) + " (" + preview_reason + ")");
   }
   return NeuralAvatar(std::move(analysis), options, std::move(session), ctx);
+}
+
+PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions& options, RunContext& ctx) {
+  options.Validate();
+  AVATAR_CHECK_INPUT(!portrait.empty() && portrait.type() == CV_8UC3) << "the portrait must be a BGR8 image";
+  ctx.Report("load the neural model", 0.0);
+  std::shared_ptr<const Session> session = SharedSession(options);
+  SourceAnalysis analysis;
+  {
+    RunContext::ProgressRange range(ctx, 0.1, 0.7);
+    analysis = AnalyseSource(portrait, options.data_dir, ctx);
+  }
+  PortraitPaths paths;
+  paths.preview = MorphablePreview(analysis, kMorphablePreviewLabel);
+  paths.portrait = analysis.portrait;
+  const SourceAnalysis kept = analysis;
+  BackendOptions plain = options;
+  plain.detail = "off";
+  paths.network = NeuralAvatar(std::move(analysis), plain, std::move(session), ctx);
+  DetailOptions face, head;
+  face.mode = "face";
+  head.mode = "head";
+  paths.face = std::make_shared<DetailFrameSource>(paths.network, kept, face);
+  paths.detail = std::make_shared<DetailFrameSource>(paths.network, kept, head);
+  return paths;
 }
 
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {

@@ -12,6 +12,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "core/face/face_types.h"
 #include "core/pipeline/driving.h"
 #include "core/pipeline/frame_source.h"
 #include "core/pipeline/session.h"
@@ -35,6 +36,10 @@ struct BackendOptions {
   // Quality level of the neural avatar (quality.h: its render settings and refinement); "" =
   // the one-shot planes rendered at the model's size (SR when trained).
   std::string quality;
+  // The photo's own detail over the neural head (detail_source.h): "head" (the photo warped
+  // onto the face through the face mesh and onto hair, ears and neck through the network's
+  // depth, where it saw the surface), "face" (the face only) or "off" (the network alone).
+  std::string detail = "head";
 
   template <typename V>
   void Visit(V&& v) {
@@ -45,8 +50,11 @@ struct BackendOptions {
     v("random_weights", random_weights,
       "Render with the untrained network's random weights (plumbing check; not a result)");
     v("quality", quality, "Quality level: instant, preview, standard, fine, best or paper (\"\" = standard frames, SR when trained)");
+    v("detail", detail,
+      "The photo's detail over the neural head: head (warped onto face, hair, ears and neck where the photo saw them), "
+      "face (the face only) or off");
   }
-  // Throws InvalidOptions for an unknown config or quality level.
+  // Throws InvalidOptions for an unknown config, quality level or detail mode.
   void Validate() const;
 };
 
@@ -54,6 +62,19 @@ struct BackendOptions {
 // cancel. Throws InvalidInput (no face), MissingData (models not installed), Cancelled.
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,
                                                      RunContext& ctx);
+
+// Every path that can render one portrait, from one analysis (for comparisons of the paths):
+// the neural avatar alone, the same avatar under the photo's detail path (face only, and
+// head), and the morphable preview. The neural model must load (no fallback). Throws like
+// CreateFrameSource.
+struct PortraitPaths {
+  std::shared_ptr<const FrameSource> network;
+  std::shared_ptr<const FrameSource> face;    // the detail path on the face only
+  std::shared_ptr<const FrameSource> detail;  // the detail path on the head (the default)
+  std::shared_ptr<const FrameSource> preview;
+  face::AlignedPortrait portrait;  // the photo's aligned crop, matte and masks they were built from
+};
+PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions& options, RunContext& ctx);
 
 // The analyser for driving videos (face tracking + morphable fit), or a factory returning
 // null when this build cannot measure driving frames.

@@ -101,6 +101,11 @@ FaceMeasurement FaceMetrics::Measure(const cv::Mat& image) const {
       return m;
     }
     m.embedding = impl_->analyzer->Embedding(bgr, lm);
+    const double back = static_cast<double>(image.cols) / bgr.cols;  // analysis -> given image pixels
+    m.landmarks.reserve(lm.points.size());
+    for (const cv::Point3f& q : lm.points) {
+      m.landmarks.emplace_back(static_cast<float>(q.x * back), static_cast<float>(q.y * back));
+    }
     m.pose = impl_->pose->Estimate(bgr, face.box);
     if (impl_->model != nullptr) {
       morphable::FitOptions fo;
@@ -117,6 +122,16 @@ FaceMeasurement FaceMetrics::Measure(const cv::Mat& image) const {
   }
   m.found = true;
   return m;
+}
+
+double MouthOpening(const std::vector<cv::Point2f>& landmarks) {
+  AVATAR_CHECK_INPUT(landmarks.size() == static_cast<size_t>(kMeshPoints))
+      << "mouth opening needs " << kMeshPoints << " facemesh points, got " << landmarks.size();
+  // Facemesh: 13 / 14 the inner upper / lower lip at the centre, 10 the top of the forehead,
+  // 152 the chin.
+  const double height = cv::norm(landmarks[10] - landmarks[152]);
+  AVATAR_CHECK_INPUT(std::isfinite(height) && height > 1e-3) << "mouth opening: degenerate face height";
+  return cv::norm(landmarks[13] - landmarks[14]) / height;
 }
 
 PairFaceMetrics FaceMetrics::Compare(const FaceMeasurement& render, const FaceMeasurement& reference) const {

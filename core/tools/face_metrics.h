@@ -58,6 +58,7 @@ struct FaceMeasurement {
   std::vector<float> embedding;    // 512-d unit identity embedding
   HeadPose pose;                   // fr_pose angles, degrees
   std::vector<float> expression;   // morphable beta (empty when expression metrics are off)
+  std::vector<cv::Point2f> landmarks;  // facemesh points in the given image's pixels
   float detection_score = 0.0f;
 };
 
@@ -82,6 +83,11 @@ struct FaceMetricsSummary {
   double csim = 0.0, apd = 0.0, aed = 0.0;  // means over valid pairs (0 when valid == 0)
   bool has_aed = false;
 };
+
+// Mouth opening of facemesh landmarks: the gap between the inner lips' centres over the face's
+// height (forehead to chin); 0 for a closed mouth, about 0.1-0.25 wide open. Throws InvalidInput
+// for fewer than kMeshPoints points or a degenerate face height.
+double MouthOpening(const std::vector<cv::Point2f>& landmarks);
 
 class FaceMetrics {
  public:

@@ -16,6 +16,7 @@
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
+#include "core/pipeline/detail_source.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "morphable/morphable_test_util.h"
@@ -69,6 +70,40 @@ TEST_F(StudioBackend, DefaultIsTheBundledNeuralModelAndItsFramesAreReal) {
   const cv::Scalar d = cv::mean(diff);
   EXPECT_GT(d[0] + d[1] + d[2], 3 * 1.0) << "turning the camera did not change the neural frame";
   EXPECT_NE(BackendStatement(BackendOptions{}).find("bundled neural avatar model"), std::string::npos);
+}
+
+// The photo's detail over the neural head is the default; --detail off shows the network alone,
+// and CreatePortraitPaths builds every path from one analysis with the same labels.
+TEST_F(StudioBackend, DetailPathIsTheDefaultAndOffShowsTheNetworkAlone) {
+  RunContext ctx;
+  const auto with_detail = CreateFrameSource(*portrait_, BackendOptions{}, ctx);
+  BackendOptions off;
+  off.detail = "off";
+  const auto plain = CreateFrameSource(*portrait_, off, ctx);
+  EXPECT_EQ(with_detail->Label(), plain->Label() + DetailLabel("head"));
+  EXPECT_EQ(plain->Label().find(kDetailLabel), std::string::npos) << plain->Label();
+  EXPECT_EQ(&Unwrapped(*plain), plain.get());
+  EXPECT_NE(&Unwrapped(*with_detail), with_detail.get());
+  // At the photo's own view the face shows the photo's pixels: the frames differ there.
+  const RenderedFrame a = Render(*with_detail, 0), b = Render(*plain, 0);
+  cv::Mat diff;
+  cv::absdiff(a.bgr, b.bgr, diff);
+  const cv::Scalar d = cv::mean(diff);
+  EXPECT_GT(d[0] + d[1] + d[2], 3 * 1.0) << "the detail path changed nothing";
+  EXPECT_TRUE(cv::checkRange(a.bgr) && cv::checkRange(a.alpha));
+
+  const PortraitPaths paths = CreatePortraitPaths(*portrait_, BackendOptions{}, ctx);
+  EXPECT_EQ(paths.network->Label(), plain->Label());
+  EXPECT_EQ(paths.detail->Label(), with_detail->Label());
+  EXPECT_EQ(paths.preview->Label().rfind("Preview: morphable model", 0), 0u) << paths.preview->Label();
+  EXPECT_EQ(paths.detail->Wrapped(), paths.network);
+  EXPECT_EQ(paths.face->Wrapped(), paths.network);
+  EXPECT_EQ(paths.face->Label(), plain->Label() + DetailLabel("face"));
+  EXPECT_EQ(paths.portrait.image.size(), cv::Size(512, 512));
+
+  BackendOptions bad;
+  bad.detail = "sharp";
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
 }
 
 TEST_F(StudioBackend, MorphablePreviewWhenChosenOrWhenNoModelLoads) {

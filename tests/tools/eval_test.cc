@@ -266,7 +266,9 @@ TEST(EvalPairs, EqualSharesPerKindEvenlySpaced) {
     ASSERT_EQ(chosen.size(), 20u) << photos << " photos, " << clips << " clips";
     int64_t photo_chosen = 0;
     for (size_t i = 0; i < chosen.size(); ++i) {
-      if (i > 0) EXPECT_LT(chosen[i - 1], chosen[i]);
+      if (i > 0) {
+        EXPECT_LT(chosen[i - 1], chosen[i]);
+      }
       if (ds.Get(chosen[i]).kind == train::PairKind::kPhoto) ++photo_chosen;
     }
     // Equal shares (10 + 10) when both kinds have 10; otherwise the scarce kind gives all it has.

@@ -93,6 +93,40 @@ TEST(FaceMetrics, SmallRendersAreUpsampledAndStillMatchTheirPerson) {
   EXPECT_TRUE(std::isfinite(same.aed));
 }
 
+// Landmarks come back in the given image's pixels, whatever size the analysis ran at: the
+// upsampled 64 px crop's landmarks are the 512 px crop's divided by 8 (within the detector's
+// jitter), and the mouth opening of a closed-mouth portrait is small at both sizes.
+TEST(FaceMetrics, LandmarksAreInTheGivenImagesPixels) {
+  const FaceMeasurement mf = Metrics().Measure(Crop("samples/grace_hopper.jpg", 512));
+  const FaceMeasurement ms = Metrics().Measure(Crop("samples/grace_hopper.jpg", 64));
+  ASSERT_TRUE(mf.found && ms.found);
+  ASSERT_EQ(mf.landmarks.size(), static_cast<size_t>(kMeshPoints));
+  ASSERT_EQ(ms.landmarks.size(), static_cast<size_t>(kMeshPoints));
+  double err = 0.0;
+  for (size_t i = 0; i < mf.landmarks.size(); ++i) err += cv::norm(mf.landmarks[i] * (1.0f / 8.0f) - ms.landmarks[i]);
+  err /= static_cast<double>(mf.landmarks.size());
+  std::cout << "mean landmark distance 64 px vs 512/8: " << err << " px; mouth opening " << MouthOpening(mf.landmarks)
+            << " / " << MouthOpening(ms.landmarks) << "\n";
+  EXPECT_LT(err, 1.5);  // 64 px image: a face of about 40 px
+  EXPECT_LT(MouthOpening(mf.landmarks), 0.05);
+  EXPECT_LT(MouthOpening(ms.landmarks), 0.05);
+}
+
+// Mouth opening: the inner lips' gap over the forehead-to-chin height, analytically.
+TEST(FaceMetrics, MouthOpeningIsTheLipGapOverTheFaceHeight) {
+  std::vector<cv::Point2f> lm(kMeshPoints, cv::Point2f(10.0f, 10.0f));
+  lm[10] = {50.0f, 0.0f};
+  lm[152] = {50.0f, 200.0f};
+  lm[13] = {50.0f, 120.0f};
+  lm[14] = {50.0f, 150.0f};
+  EXPECT_NEAR(MouthOpening(lm), 30.0 / 200.0, 1e-9);
+  lm[14] = lm[13];
+  EXPECT_EQ(MouthOpening(lm), 0.0);
+  lm[152] = lm[10];
+  EXPECT_THROW(MouthOpening(lm), InvalidInput);  // degenerate height
+  EXPECT_THROW(MouthOpening(std::vector<cv::Point2f>(5)), InvalidInput);
+}
+
 TEST(FaceMetrics, BlankNoiseAndEmptyImagesAreNoFaceNotErrors) {
   const cv::Mat blank(128, 128, CV_8UC3, cv::Scalar(90, 90, 90));
   cv::Mat noise_image(32, 32, CV_8UC3);

@@ -9,7 +9,9 @@
 #include "common/synthetic_studio.h"
 #include "core/model/checkpoint.h"
 #include "core/model/goha_model.h"
+#include "core/pipeline/detail_source.h"
 
+#include <QCheckBox>
 #include <QComboBox>
 #include <QDockWidget>
 #include <QElapsedTimer>
@@ -62,7 +64,9 @@ class QualityTest : public QObject {
   }
 
   static const SessionFrameSource* Neural(const MainWindow& w) {
-    return dynamic_cast<const SessionFrameSource*>(w.frameSource().get());
+    // The neural avatar under the photo's detail path (the default) or shown alone.
+    if (w.frameSource() == nullptr) return nullptr;
+    return dynamic_cast<const SessionFrameSource*>(&Unwrapped(*w.frameSource()));
   }
 
  private slots:
@@ -169,6 +173,18 @@ class QualityTest : public QObject {
     const SessionFrameSource* before = Neural(*w);
     QVERIFY(before != nullptr);
     QVERIFY(before->avatar().RefinementInfo().empty());  // standard: one-shot planes
+    // The studio's detail switch: on by default, off shows the same neural avatar alone at once
+    // (no reconstruction), on again restores the detail path.
+    QVERIFY(w->sourcePanel()->photoDetail());
+    const std::shared_ptr<const FrameSource> with_detail = w->frameSource();
+    QVERIFY2(QString::fromStdString(with_detail->Label()).endsWith(QString::fromStdString(DetailLabel("head"))),
+             with_detail->Label().c_str());
+    w->sourcePanel()->photoDetailBox()->setChecked(false);
+    QCOMPARE(static_cast<const FrameSource*>(Neural(*w)), w->frameSource().get());
+    QVERIFY(!QString::fromStdString(w->frameSource()->Label()).contains(QString::fromUtf8(kDetailLabel)));
+    w->sourcePanel()->photoDetailBox()->setChecked(true);
+    QCOMPARE(w->frameSource(), with_detail);
+    QCOMPARE(Neural(*w), before);
     // That first use of the model measured the ladder (this test's cache started empty), so the
     // `best` reconstruction below refines and then has nothing left to measure.
     QVERIFY(w->qualityEstimates().has_value());

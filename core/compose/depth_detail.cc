@@ -1,0 +1,140 @@
+#include "core/compose/depth_detail.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <opencv2/imgproc.hpp>
+
+#include "core/render/view_pose.h"
+#include "core/util/error.h"
+
+namespace avatar::compose {
+namespace {
+
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+// Bilinear sample of a finite-or-inf map at continuous pixel position (x, y) (pixel centres at
+// i + 0.5); +inf when any of the four neighbours is not finite or the point is outside.
+float SampleDepth(const cv::Mat& depth, double x, double y) {
+  const double fx = x - 0.5, fy = y - 0.5;
+  const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
+  if (x0 < 0 || y0 < 0 || x0 + 1 >= depth.cols || y0 + 1 >= depth.rows) {
+    const int xi = std::clamp(static_cast<int>(std::floor(x)), 0, depth.cols - 1);
+    const int yi = std::clamp(static_cast<int>(std::floor(y)), 0, depth.rows - 1);
+    if (x < 0 || y < 0 || x >= depth.cols || y >= depth.rows) return kInf;
+    return depth.at<float>(yi, xi);
+  }
+  const double ax = fx - x0, ay = fy - y0;
+  const float a = depth.at<float>(y0, x0), b = depth.at<float>(y0, x0 + 1);
+  const float c = depth.at<float>(y0 + 1, x0), d = depth.at<float>(y0 + 1, x0 + 1);
+  if (!std::isfinite(a) || !std::isfinite(b) || !std::isfinite(c) || !std::isfinite(d)) return kInf;
+  return static_cast<float>((1 - ay) * ((1 - ax) * a + ax * b) + ay * ((1 - ax) * c + ax * d));
+}
+
+}  // namespace
+
+void DepthDetailOptions::Validate() const {
+  AVATAR_CHECK_OPTION(std::isfinite(depth_tolerance) && depth_tolerance > 0.0 && depth_tolerance < 1.0)
+      << "the depth-detail tolerance must be in (0, 1), got " << depth_tolerance;
+  AVATAR_CHECK_OPTION(min_alpha >= 0 && min_alpha <= 255) << "the depth-detail alpha threshold must be 0..255";
+  AVATAR_CHECK_OPTION(std::isfinite(min_matte) && min_matte >= 0.0f && min_matte <= 1.0f)
+      << "the depth-detail matte threshold must be in [0, 1], got " << min_matte;
+  AVATAR_CHECK_OPTION(std::isfinite(depth_smoothing) && depth_smoothing >= 0.0 && depth_smoothing <= 0.25)
+      << "the depth smoothing must be in [0, 0.25], got " << depth_smoothing;
+  AVATAR_CHECK_OPTION(std::isfinite(feather) && feather >= 0.0 && feather <= 0.25)
+      << "the depth-detail feather must be in [0, 0.25], got " << feather;
+}
+
+cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing) {
+  AVATAR_CHECK_INPUT(!depth.empty() && depth.type() == CV_32FC1) << "a depth map must be CV_32FC1";
+  cv::Mat known(depth.size(), CV_32FC1), value(depth.size(), CV_32FC1);
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float d = depth.at<float>(y, x);
+      const bool ok = std::isfinite(d);
+      known.at<float>(y, x) = ok ? 1.0f : 0.0f;
+      value.at<float>(y, x) = ok ? d : 0.0f;
+    }
+  }
+  const double sigma = smoothing * depth.rows;
+  if (sigma >= 0.3) {
+    // Normalised convolution: the finite values spread over the gaps between them.
+    cv::GaussianBlur(known, known, cv::Size(0, 0), sigma);
+    cv::GaussianBlur(value, value, cv::Size(0, 0), sigma);
+  }
+  cv::Mat out(depth.size(), CV_32FC1);
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float k = known.at<float>(y, x);
+      out.at<float>(y, x) = k > 1e-3f ? value.at<float>(y, x) / k : kInf;
+    }
+  }
+  return out;
+}
+
+DepthDetail::DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const DepthDetailOptions& options)
+    : photo_(std::move(photo)), matte_(std::move(matte)), source_(std::move(source)), options_(options) {
+  options_.Validate();
+  AVATAR_CHECK_INPUT(!photo_.empty() && photo_.type() == CV_8UC3) << "the detail photo must be an 8-bit BGR image";
+  if (matte_.empty()) matte_ = cv::Mat(photo_.size(), CV_32FC1, cv::Scalar(1.0f));
+  AVATAR_CHECK_INPUT(matte_.type() == CV_32FC1 && matte_.size() == photo_.size())
+      << "the detail matte must be CV_32FC1 of the photo's size";
+  AVATAR_CHECK_INPUT(!source_.depth.empty() && source_.depth.type() == CV_32FC1)
+      << "the source-view depth must be a CV_32FC1 map";
+  morphable::PinholeCamera::FromLabel(source_.camera);  // throws for a bad camera
+  source_.depth = SmoothDepth(source_.depth, options_.depth_smoothing);
+  AVATAR_CHECK_INPUT(cv::countNonZero(source_.depth < kInf) > 0) << "the source-view depth is empty (no opaque pixel)";
+}
+
+FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const {
+  AVATAR_CHECK_INPUT(!target.depth.empty() && target.depth.type() == CV_32FC1) << "the target depth must be CV_32FC1";
+  AVATAR_CHECK_INPUT(alpha.type() == CV_8UC1 && alpha.size() == target.depth.size())
+      << "the target alpha must be CV_8UC1 of the depth's size";
+  const cv::Size size = target.depth.size();
+  const morphable::PinholeCamera tcam = morphable::PinholeCamera::FromLabel(target.camera);
+  const morphable::PinholeCamera scam = morphable::PinholeCamera::FromLabel(source_.camera);
+  const cv::Mat depth = SmoothDepth(target.depth, options_.depth_smoothing);
+  const cv::Matx33d k_inv = tcam.k_normalised.inv();
+  const cv::Matx33d cam_to_world = tcam.world_to_cam.t();
+  const double tolerance = options_.depth_tolerance * render::kCameraRadius;
+  const double sx_scale = static_cast<double>(source_.depth.cols) / photo_.cols;
+  const double sy_scale = static_cast<double>(source_.depth.rows) / photo_.rows;
+
+  cv::Mat map_x(size, CV_32FC1, cv::Scalar(-1.0f)), map_y(size, CV_32FC1, cv::Scalar(-1.0f));
+  FaceWarp out;
+  out.valid = cv::Mat::zeros(size, CV_8UC1);
+  out.face = cv::Mat::zeros(size, CV_8UC1);
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      if (alpha.at<uchar>(y, x) < options_.min_alpha) continue;
+      out.face.at<uchar>(y, x) = 255;
+      const float t = depth.at<float>(y, x);
+      if (!std::isfinite(t) || t <= 0.0f) continue;
+      // The pixel's ray (unit direction, as the volume renderer casts it) at depth t.
+      const cv::Vec3d uv1((x + 0.5) / size.width, (y + 0.5) / size.height, 1.0);
+      cv::Vec3d dir = cam_to_world * (k_inv * uv1);
+      const double len = cv::norm(dir);
+      if (!(len > 0.0)) continue;
+      dir *= 1.0 / len;
+      const cv::Vec3d world = tcam.centre + static_cast<double>(t) * dir;
+      const cv::Vec3d p = scam.ToCamera(world);
+      if (!(p[2] > 1e-6)) continue;
+      const cv::Point2d px = scam.ToPixel(p, photo_.size());
+      const int ix = static_cast<int>(std::floor(px.x)), iy = static_cast<int>(std::floor(px.y));
+      if (ix < 0 || iy < 0 || ix >= photo_.cols || iy >= photo_.rows) continue;
+      const float seen = SampleDepth(source_.depth, px.x * sx_scale, px.y * sy_scale);
+      if (!std::isfinite(seen) || cv::norm(world - scam.centre) > seen + tolerance) continue;  // hidden
+      if (matte_.at<float>(iy, ix) < options_.min_matte) continue;                             // background
+      map_x.at<float>(y, x) = static_cast<float>(px.x - 0.5);
+      map_y.at<float>(y, x) = static_cast<float>(px.y - 0.5);
+      out.valid.at<uchar>(y, x) = 255;
+    }
+  }
+  cv::remap(photo_, out.bgr, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  out.bgr.setTo(cv::Scalar::all(0), out.valid == 0);
+  out.weight = FeatheredWeight(out.valid, options_.feather);
+  return out;
+}
+
+}  // namespace avatar::compose

@@ -1,0 +1,64 @@
+#pragma once
+// The photo's pixels carried to a new view through the network's own rendered depth: a 2.5D
+// proxy for what the face mesh does not cover (hair, ears, neck, shoulders). A target pixel that
+// the network renders opaque is lifted to 3D with its depth along the ray, projected into the
+// source camera, and looks the photo up there when the photo saw that point (its distance from
+// the source camera within a tolerance of the network's source-view depth) and it belongs to the
+// person (matte). Both depth maps are smoothed first (the volume render is 32 px with the bundled
+// model: its depth upsampled by nearest neighbour would warp in blocks).
+
+#include <opencv2/core.hpp>
+
+#include "core/compose/face_detail.h"
+#include "core/morphable/camera_label.h"
+
+namespace avatar::compose {
+
+struct DepthDetailOptions {
+  // Visibility tolerance: a point farther from the source camera than the source depth plus this
+  // fraction of the camera distance (2.7) was hidden in the photo.
+  double depth_tolerance = 0.03;
+  // Opacity (0..255) below which a target pixel is background.
+  int min_alpha = 128;
+  // Matte value below which a photo pixel is background.
+  float min_matte = 0.5f;
+  // Smoothing of both depth maps (Gaussian sigma) as a fraction of the map's height.
+  double depth_smoothing = 0.02;
+  // Feather width of the warp's edge, as a fraction of the output height.
+  double feather = 0.015;
+
+  // Throws InvalidOptions.
+  void Validate() const;
+};
+
+// A source view's depth: along each pixel's ray, +inf (or any non-finite value) where empty.
+struct ViewDepth {
+  morphable::CameraLabel camera{};
+  cv::Mat depth;  // CV_32FC1
+};
+
+class DepthDetail {
+ public:
+  // `photo` (CV_8UC3) and `matte` (CV_32FC1 in [0,1] of the photo's size; empty = all person) are
+  // the aligned crop seen by `source.camera`; `source.depth` is the network's depth at that camera
+  // (any size; the photo's aspect). Throws InvalidInput for mismatched sizes or types, a source
+  // depth without any finite value, or a bad camera.
+  DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const DepthDetailOptions& options = {});
+
+  // The photo warped to `target.camera` through `target.depth`, at the target depth's size,
+  // where `alpha` (CV_8UC1, same size) is opaque. `face` of the result marks the opaque pixels.
+  // Outputs finite; all invalid when nothing is opaque or the depth is empty.
+  FaceWarp Warp(const ViewDepth& target, const cv::Mat& alpha) const;
+
+ private:
+  cv::Mat photo_;
+  cv::Mat matte_;
+  ViewDepth source_;  // depth smoothed
+  DepthDetailOptions options_;
+};
+
+// Non-finite depth filled from its finite neighbours and smoothed (sigma = `smoothing` x height);
+// pixels with no finite value within reach stay +inf. For tests and the warp.
+cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing);
+
+}  // namespace avatar::compose
