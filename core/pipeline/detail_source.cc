@@ -1,6 +1,7 @@
 #include "core/pipeline/detail_source.h"
 
 #include "core/pipeline/morphable_expression_source.h"
+#include "core/pipeline/morphable_preview.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 
@@ -66,6 +67,9 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
       AVATAR_LOG(kWarning) << warnings.back();
     }
   }
+  if (options_.face_fill) {
+    fill_ = std::make_unique<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture);
+  }
   SetWarnings(std::move(warnings));
 }
 
@@ -96,6 +100,17 @@ RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext&
   ctx.ThrowIfCancelled();
   if (depth_ != nullptr) frame.bgr = compose::Composite(frame.bgr, DepthWarp(request, frame), &frame.alpha);
   const compose::FaceWarp warp = Warp(request);
+  if (fill_ != nullptr) {
+    // Under the photo's warp, the textured face mesh over the whole face: what the photo did not
+    // see of the face shows the fit's texture, not the network's blur.
+    const RenderedFrame face = fill_->Render(request, ctx);
+    compose::FaceWarp fill;
+    fill.bgr = face.bgr;
+    fill.valid = face.alpha >= 128;
+    fill.face = fill.valid;
+    fill.weight = compose::FeatheredWeight(fill.valid, options_.face.feather);
+    frame.bgr = compose::Composite(frame.bgr, fill, &frame.alpha);
+  }
   frame.bgr = compose::Composite(frame.bgr, warp, &frame.alpha);
   return frame;
 }

@@ -27,6 +27,10 @@ struct DetailOptions {
   std::string mode = "head";  // head or face (off: do not wrap)
   compose::FaceDetailOptions face;
   compose::DepthDetailOptions depth;
+  // Face pixels the photo did not see (the far cheek of a turned head) come from the fitted
+  // face's texture (the morphable preview's, which is filled where the photo did not see) instead
+  // of the base frame.
+  bool face_fill = true;
   // Size of the base render whose depth is the source view's proxy (once per source).
   int source_depth_size = 128;
   // Throws InvalidOptions.
@@ -64,6 +68,7 @@ class DetailFrameSource : public FrameSource {
   compose::FaceDetail detail_;
   DetailOptions options_;
   std::unique_ptr<compose::DepthDetail> depth_;
+  std::unique_ptr<FrameSource> fill_;  // the textured face mesh (face_fill)
 };
 
 // The start of the label suffix of every frame with the detail path; DetailLabel(mode) is the
