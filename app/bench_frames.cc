@@ -15,6 +15,9 @@
 // render and to the goals (30 fps = 33.3 ms per frame; 100 ms per expression change). Each
 // configuration's frames are also compared with the full render's at the same view (mean abs
 // difference of the 8-bit images, in [0,1] units).
+// Then the detail path (core/pipeline/detail_source.h) as the studio's frame sources render it: the
+// network alone, the detail on the face and on the head, at 256^2 and 512^2 output, over an orbit
+// of half the yaw range, with the one-time bake of the head detail.
 
 #include <algorithm>
 #include <cmath>
@@ -32,6 +35,7 @@
 #include "core/io/image_io.h"
 #include "core/tools/benchmarks.h"
 #include "core/pipeline/session.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "core/util/threads.h"
 #include "core/util/timer.h"
@@ -211,8 +215,47 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
               << " | " << change_text << " |\n";
   }
   std::cout << "\n'vs full' = median time with the configuration / with every skip off (below 1 = faster); "
-               "'vs goal' = median time / goal (at most 1 meets it).\nPeak RSS "
-            << Fixed(PeakRssMb(), 0) << " MB." << std::endl;
+               "'vs goal' = median time / goal (at most 1 meets it).\n"
+            << std::flush;
+
+  // The detail path: the studio's frame sources of the same portrait (one analysis), the
+  // network alone and under the photo's detail, taking turns at each view and output size.
+  BackendOptions backend;
+  backend.checkpoint = options.checkpoint;
+  backend.data_dir = options.common.data_dir;
+  const PortraitPaths paths = CreatePortraitPaths(photo, backend, quiet);
+  const std::vector<std::pair<std::string, const FrameSource*>> sources = {
+      {"network alone (--detail off)", paths.network.get()},
+      {"detail on the face (--detail face)", paths.face.get()},
+      {"detail on the head (--detail head, default)", paths.detail.get()}};
+  std::cout << "\nDetail path (frame sources as the studio and animate use them; the bake = the head detail's "
+               "source-view depth and face depth, once per avatar: "
+            << Fixed(paths.bake_seconds, 3) << " s):\n\n"
+            << "| output | path | frame (median ms) | vs network alone | detail's share of the frame |\n"
+            << "|---|---|---|---|---|\n";
+  for (const int size : {256, 512}) {
+    std::vector<std::vector<double>> ms(sources.size());
+    for (int i = 0; i < options.frames; ++i) {
+      ctx.ThrowIfCancelled();
+      FrameRequest request;
+      request.view = paths.network->SourcePose();
+      request.view.yaw += -options.yaw_range / 2.0 + options.yaw_range * i / (options.frames - 1);
+      request.width = request.height = size;
+      for (size_t k = 0; k < sources.size(); ++k) {
+        Timer timer;
+        sources[k].second->Render(request, quiet);
+        ms[k].push_back(timer.Milliseconds());
+      }
+    }
+    const double base = Median(ms[0]);
+    for (size_t k = 0; k < sources.size(); ++k) {
+      const double m = Median(ms[k]);
+      std::cout << "| " << size << "^2 | " << sources[k].first << " | " << Fixed(m, 1) << " | " << Ratio(m / base)
+                << " | " << (k == 0 ? std::string("-") : Fixed(100.0 * (m - base) / m, 0) + "%") << " |\n";
+    }
+  }
+  std::cout << "\nOrbit of the detail rows: " << options.frames << " views over +-" << Fixed(options.yaw_range / 2.0, 0)
+            << " deg about the portrait's pose.\nPeak RSS " << Fixed(PeakRssMb(), 0) << " MB." << std::endl;
   return kExitOk;
 }
 

@@ -1,5 +1,6 @@
 #include "core/pipeline/studio_backend.h"
 
+#include <chrono>
 #include <map>
 #include <mutex>
 
@@ -175,7 +176,9 @@ PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions&
   face.mode = "face";
   head.mode = "head";
   paths.face = std::make_shared<DetailFrameSource>(paths.network, kept, face);
+  const auto bake_start = std::chrono::steady_clock::now();
   paths.detail = std::make_shared<DetailFrameSource>(paths.network, kept, head);
+  paths.bake_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - bake_start).count();
   return paths;
 }
 

@@ -73,6 +73,7 @@ struct PortraitPaths {
   std::shared_ptr<const FrameSource> detail;  // the detail path on the head (the default)
   std::shared_ptr<const FrameSource> preview;
   face::AlignedPortrait portrait;  // the photo's aligned crop, matte and masks they were built from
+  double bake_seconds = 0.0;       // building the head detail path (its source-view depth bakes)
 };
 PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions& options, RunContext& ctx);
 
