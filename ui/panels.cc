@@ -134,6 +134,9 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
     emit detailChanged(on);
   });
   layout->addWidget(photo_detail_);
+  // The detail path goes over the neural avatar: nothing to switch under the morphable preview.
+  photo_detail_->setEnabled(!morphable_preview_->isChecked());
+  connect(morphable_preview_, &QCheckBox::toggled, photo_detail_, [this](bool on) { photo_detail_->setEnabled(!on); });
 
   random_weights_ = new QCheckBox(tr("Use &random network weights"), this);
   random_weights_->setToolTip(
