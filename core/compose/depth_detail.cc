@@ -126,15 +126,12 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
       const float seen = SampleDepth(source_.depth, px.x * sx_scale, px.y * sy_scale);
       if (!std::isfinite(seen) || cv::norm(world - scam.centre) > seen + tolerance) continue;  // hidden
       if (matte_.at<float>(iy, ix) < options_.min_matte) continue;                             // background
-      map_x.at<float>(y, x) = static_cast<float>(px.x - 0.5);
-      map_y.at<float>(y, x) = static_cast<float>(px.y - 0.5);
+      map_x.at<float>(y, x) = static_cast<float>(px.x);
+      map_y.at<float>(y, x) = static_cast<float>(px.y);
       out.valid.at<uchar>(y, x) = 255;
     }
   }
-  cv::remap(photo_, out.bgr, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
-  out.bgr.setTo(cv::Scalar::all(0), out.valid == 0);
-  out.weight = FeatheredWeight(out.valid, options_.feather);
-  return out;
+  return WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
 }
 
 }  // namespace avatar::compose

@@ -114,14 +114,27 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
       if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
       if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
       if (!same_expression && !options_.eyes_mouth_from_photo && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
-      map_x.at<float>(y, x) = static_cast<float>(px.x - 0.5);  // pixel centres at i + 0.5
-      map_y.at<float>(y, x) = static_cast<float>(px.y - 0.5);
+      map_x.at<float>(y, x) = static_cast<float>(px.x);
+      map_y.at<float>(y, x) = static_cast<float>(px.y);
       out.valid.at<uchar>(y, x) = 255;
     }
   }
-  cv::remap(photo_, out.bgr, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
-  out.bgr.setTo(cv::Scalar::all(0), out.valid == 0);
-  out.weight = FeatheredWeight(out.valid, options_.feather);
+  return WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
+}
+
+FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,
+                      double feather) {
+  AVATAR_CHECK_INPUT(map_x.type() == CV_32FC1 && map_y.type() == CV_32FC1 && map_x.size() == valid.size() &&
+                     map_y.size() == valid.size() && valid.type() == CV_8UC1)
+      << "detail: the warp maps must be CV_32FC1 of the valid mask's size";
+  FaceWarp out;
+  // cv::remap addresses pixel centres at integers.
+  cv::Mat mx = map_x - 0.5f, my = map_y - 0.5f;
+  cv::remap(photo, out.bgr, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  out.bgr.setTo(cv::Scalar::all(0), valid == 0);
+  out.weight = FeatheredWeight(valid, feather);
+  out.valid = std::move(valid);
+  out.face = std::move(face);
   return out;
 }
 

@@ -68,6 +68,12 @@ class FaceDetail {
   cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
 };
 
+// The warp of `photo` by per-pixel source positions (map_x, map_y: photo pixels, centres at
+// i + 0.5; anything where `valid` is 0): one bilinear lookup, black outside `valid`, and the
+// feathered weight. `face` is passed through.
+FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,
+                      double feather);
+
 // The blend weight of a valid mask (CV_8UC1, 255 = valid): 0 outside, rising to 1 over
 // `feather` x height inside (CV_32FC1 in [0,1]).
 cv::Mat FeatheredWeight(const cv::Mat& valid, double feather);
