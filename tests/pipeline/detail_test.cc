@@ -218,6 +218,35 @@ TEST_F(Detail, DegenerateProxyFallsBackToTheFaceWithAWarning) {
   }
 }
 
+// Hard sources: a photo with its eyes closed driven to eyes wide open (the closed lids are
+// stretched over the opened eyes' mesh), and a person whose matte touches the image border
+// everywhere (a crop of a body that fills the frame): frames finite and in range, masks
+// consistent.
+TEST_F(Detail, ClosedEyeSourceAndAMatteTouchingTheBorderStayFiniteAndInRange) {
+  SourceAnalysis closed = *analysis_;
+  Expression blink;
+  blink.controls["blinkLeft"] = 1.0f;
+  blink.controls["blinkRight"] = 1.0f;
+  closed.morphable_fit.beta = ExpressionBeta(*closed.model, closed.morphable_fit.beta, blink);
+  SourceAnalysis border = *analysis_;
+  border.portrait.matte = cv::Mat(border.portrait.matte.size(), CV_32FC1, cv::Scalar(1.0f));
+  for (const SourceAnalysis* a : {&closed, &border}) {
+    const DetailFrameSource source(Base(), *a);
+    FrameRequest request;
+    request.view = source.SourcePose();
+    request.width = request.height = 128;
+    request.expression.controls["eyesWide"] = 1.0f;
+    for (const double yaw : {0.0, 35.0, -60.0}) {
+      request.view.yaw = source.SourcePose().yaw + yaw;
+      ExpectSane(source.Warp(request), cv::Size(128, 128));
+      RunContext ctx;
+      const RenderedFrame frame = source.Render(request, ctx);
+      ASSERT_EQ(frame.bgr.size(), cv::Size(128, 128));
+      EXPECT_TRUE(cv::checkRange(frame.bgr) && cv::checkRange(frame.alpha));
+    }
+  }
+}
+
 TEST_F(Detail, BadInputsAreRefused) {
   compose::FaceDetailOptions options;
   options.feather = -1.0;
