@@ -65,10 +65,10 @@ int RunOrbit(const std::vector<std::string>& args) {
   if (!ParseCommand(o, args, "avatar-studio eval orbit PHOTO... [--out DIR] [--yaws -30,-15,0,15,30] [--size 256]",
                     "Novel views without ground truth: reconstructs each photo once and renders it at camera yaws "
                     "around its\nown pose with every path (the network alone, the morphable preview, the preview "
-                    "pasted over the network,\nthe photo's detail path), scored against the photo: identity cosine "
-                    "(fr_feature), the detail outside the\nface (mean |Laplacian| as a fraction of the photo's), "
-                    "the source view's PSNR against the matted crop and the\nmouth opening of --jaw-control. Writes "
-                    "OUT/orbit.md, OUT/orbit.json and OUT/orbit.png.",
+                    "pasted over the\nnetwork, the photo's detail on the face and on the head), scored against the "
+                    "photo: identity\ncosine (fr_feature), the detail outside the face (mean |Laplacian| as a "
+                    "fraction of the photo's),\nthe source view's PSNR against the matted crop and the mouth opening "
+                    "of --jaw-control.\nWrites OUT/orbit.md, OUT/orbit.json and OUT/orbit.png.",
                     &positionals)) {
     return kExitOk;
   }

@@ -58,7 +58,10 @@ struct OrbitEvalOptions {
     v("jaw_value", jaw_value, "Value of that control");
     v("contact_photos", contact_photos, "Photos shown in orbit.png");
     v("checkpoint", checkpoint, "Neural model checkpoint (default: the installed or bundled model)");
-    face.Visit(v);
+    // The face analysis of the metrics (AED is not measured here).
+    v("face_analysis_size", face.analysis_size, "Long side small images are upsampled to before face analysis");
+    v("face_min_score", face.min_score, "Face detection score threshold of the face metrics");
+    v("face_min_mesh_confidence", face.min_mesh_confidence, "Landmark confidence below which a face counts as not found");
   }
   // Throws InvalidOptions (no photos, a bad yaw list, size outside 64..1024, ...).
   void Validate() const;
