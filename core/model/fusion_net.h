@@ -1,0 +1,55 @@
+#pragma once
+// The fusion network that finishes a frame of the detail path (issue 33): a small 2D U-Net that
+// looks at the geometric composite (the photo warped where it saw the surface over the upsampled
+// network render), the network render itself and the masks that say where each came from, and
+// predicts a residual and a blend mask:
+//   out = composite + sigmoid(m) * 2 tanh(r)
+// The mask's bias starts at -6 (sigmoid 0.0025), so an untrained net returns the composite almost
+// unchanged and training can only move it where that lowers the loss.
+//
+// Input channels (FusionInputChannels, in this order; images in [-1,1], masks in [0,1]):
+//   0-2  the geometric composite (BGR as everywhere in the pipeline)
+//   3-5  the network render upsampled to the output size
+//   6    the face warp's blend weight        7  the depth warp's blend weight
+//   8    the face mesh's coverage            9  the target's eye and mouth region
+//   10   the frame's opacity
+// Architecture: per level two 3x3 convs with LeakyReLU(0.2), a stride-2 3x3 conv down; bilinear
+// x2 up, concatenation with the level's skip, two 3x3 convs; a 1x1 head to 4 channels.
+
+#include <vector>
+
+#include <torch/torch.h>
+
+namespace avatar {
+
+inline constexpr int64_t kFusionInputChannels = 11;
+
+struct FusionNetOptions {
+  int64_t in_channels = kFusionInputChannels;
+  // Feature widths from the full resolution down; the last is the bottleneck's (at 1/2^(n-1)).
+  std::vector<int64_t> widths = {16, 32, 64, 96};
+  // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels).
+  void Validate() const;
+};
+
+class FusionNetImpl : public torch::nn::Module {
+ public:
+  explicit FusionNetImpl(const FusionNetOptions& options = {});
+  // x [B,in_channels,H,W] (H and W divisible by 2^(levels-1)) -> the finished image [B,3,H,W].
+  // Throws InvalidInput for other shapes.
+  torch::Tensor forward(const torch::Tensor& x);
+  // The residual and the blend mask before they are combined: {r [B,3,H,W], m [B,1,H,W] in (0,1)}.
+  std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x);
+  const FusionNetOptions& options() const { return options_; }
+  int64_t ParameterCount() const;
+
+ private:
+  FusionNetOptions options_;
+  torch::nn::ModuleList down_{nullptr};   // per level: the two convs (Sequential)
+  torch::nn::ModuleList pool_{nullptr};   // stride-2 convs between levels
+  torch::nn::ModuleList up_{nullptr};     // per decoder level: the two convs after the concat
+  torch::nn::Conv2d head_{nullptr};
+};
+TORCH_MODULE(FusionNet);
+
+}  // namespace avatar
