@@ -185,8 +185,10 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
       frames[2] = Paste(frames[0], frames[1]);
       return frames;
     };
+    std::vector<RenderedFrame> neutral;  // the source view's frames (rendered once)
     for (size_t y = 0; y < n_yaw; ++y) {
       const std::vector<RenderedFrame> frames = render_all(report.yaws[y], Expression{});
+      if (report.yaws[y] == 0.0) neutral = frames;
       for (size_t k = 0; k < keys.size(); ++k) {
         const face::FaceMeasurement m = metrics.Measure(frames[k].bgr);
         nlohmann::json cell = {{"path", keys[k]}, {"yaw", report.yaws[y]}, {"face", m.found}};
@@ -216,7 +218,7 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
     // The mouth: neutral and opened at the source view.
     Expression open;
     open.controls[options.jaw_control] = static_cast<float>(options.jaw_value);
-    const std::vector<RenderedFrame> neutral = render_all(0.0, Expression{});
+    if (neutral.empty()) neutral = render_all(0.0, Expression{});
     const std::vector<RenderedFrame> opened = render_all(0.0, open);
     for (size_t k = 0; k < keys.size(); ++k) {
       const face::FaceMeasurement a = metrics.Measure(neutral[k].bgr);

@@ -260,6 +260,27 @@ TEST_F(Detail, BadInputsAreRefused) {
   const compose::FaceDetail detail(model, analysis_->morphable_fit, analysis_->portrait.image_unmatted, cv::Mat(),
                                    cv::Mat());
   EXPECT_THROW(detail.Warp(analysis_->morphable_fit.camera, morphable::Beta(3, 0.0f), cv::Size(64, 64)), InvalidInput);
+  // The depth warp: bad options, an empty or mistyped source depth, a target alpha of another size.
+  compose::DepthDetailOptions depth_options;
+  depth_options.depth_tolerance = 0.0;
+  EXPECT_THROW(depth_options.Validate(), InvalidOptions);
+  depth_options = {};
+  depth_options.min_alpha = 300;
+  EXPECT_THROW(depth_options.Validate(), InvalidOptions);
+  const cv::Mat& photo = analysis_->portrait.image_unmatted;
+  const morphable::CameraLabel camera = analysis_->morphable_fit.camera;
+  const float inf = std::numeric_limits<float>::infinity();
+  EXPECT_THROW(compose::DepthDetail(photo, cv::Mat(), {camera, cv::Mat(32, 32, CV_32FC1, cv::Scalar(inf))}),
+               InvalidInput);
+  EXPECT_THROW(compose::DepthDetail(photo, cv::Mat(), {camera, cv::Mat(32, 32, CV_8UC1)}), InvalidInput);
+  EXPECT_THROW(compose::DepthDetail(photo, cv::Mat(10, 10, CV_32FC1), {camera, cv::Mat(32, 32, CV_32FC1, 2.7f)}),
+               InvalidInput);
+  const compose::DepthDetail depth(photo, cv::Mat(), {camera, cv::Mat(32, 32, CV_32FC1, cv::Scalar(2.7f))});
+  EXPECT_THROW(depth.Warp({camera, cv::Mat(32, 32, CV_32FC1, cv::Scalar(2.7f))}, cv::Mat(16, 16, CV_8UC1)),
+               InvalidInput);
+  const compose::FaceWarp far = depth.Warp({camera, cv::Mat(32, 32, CV_32FC1, cv::Scalar(inf))},
+                                           cv::Mat(32, 32, CV_8UC1, cv::Scalar(255)));
+  EXPECT_EQ(cv::countNonZero(far.valid), 0);  // an empty target depth: nothing valid, no crash
   morphable::Beta nan_beta = analysis_->morphable_fit.beta;
   nan_beta[0] = std::nanf("");
   EXPECT_THROW(detail.Warp(analysis_->morphable_fit.camera, nan_beta, cv::Size(64, 64)), InvalidInput);
