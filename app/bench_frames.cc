@@ -50,6 +50,8 @@ constexpr double kExpressionGoalMs = 100.0;
 struct BenchFramesOptions {
   // Model checkpoint ("" = the installed or bundled model).
   std::string checkpoint;
+  // Fusion net weights: adds the learned path's row ("" = none).
+  std::string fusion;
   // Portrait photo ("" = the bundled sample portrait, samples/grace_hopper.jpg in the data folder).
   std::string portrait;
   // Orbit frames per configuration and pass.
@@ -68,6 +70,7 @@ struct BenchFramesOptions {
   template <typename V>
   void Visit(V&& v) {
     v("checkpoint", checkpoint, "Model checkpoint (default: the installed or bundled model)");
+    v("fusion", fusion, "Fusion net weights: adds the learned path's row");
     v("portrait", portrait, "Portrait photo (default: the bundled sample portrait)");
     v("frames", frames, "Orbit frames per configuration and pass");
     v("repeats", repeats, "Orbit passes (median over all frames)");
@@ -223,11 +226,13 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
   BackendOptions backend;
   backend.checkpoint = options.checkpoint;
   backend.data_dir = options.common.data_dir;
+  backend.fusion = options.fusion;
   const PortraitPaths paths = CreatePortraitPaths(photo, backend, quiet);
-  const std::vector<std::pair<std::string, const FrameSource*>> sources = {
+  std::vector<std::pair<std::string, const FrameSource*>> sources = {
       {"network alone (--detail off)", paths.network.get()},
       {"detail on the face (--detail face)", paths.face.get()},
       {"detail on the head (--detail head, default)", paths.detail.get()}};
+  if (paths.learned) sources.push_back({"head detail + fusion net (--fusion)", paths.learned.get()});
   std::cout << "\nDetail path (frame sources as the studio and animate use them; the bake = the head detail's "
                "source-view depth and face depth, once per avatar: "
             << Fixed(paths.bake_seconds, 3) << " s):\n\n"

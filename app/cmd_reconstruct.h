@@ -10,6 +10,7 @@
 #include "app/commands.h"
 #include "core/pipeline/reconstruct.h"
 #include "core/pipeline/session.h"
+#include "core/pipeline/studio_backend.h"
 
 namespace avatar::app {
 
@@ -62,6 +63,12 @@ struct RenderCommandOptions {
   bool alpha = false;
   // Also write the depth map as a 16-bit PNG next to the output (<name>_depth.png).
   bool depth = false;
+  // The photo's detail over the network render (head, face or off; BackendOptions::detail) and
+  // the fusion net that finishes it. Needs an avatar that keeps its portrait's analysis.
+  std::string detail = "head";
+  std::string fusion;
+  // Side of the output image with the detail path (the network alone renders at its mode's size).
+  int size = 512;
   // Model selection.
   SessionOptions session;
   // Threads, data folder, verbosity.
@@ -77,10 +84,17 @@ struct RenderCommandOptions {
     v("mode", mode, "Render mode: preview (fast, small), standard (render size) or final (with super-resolution)");
     v("alpha", alpha, "Write RGBA with the rendered opacity as alpha");
     v("depth", depth, "Also write <output>_depth.png (16-bit, near 2.25 = 0, far 3.3 = 65535)");
+    v("detail", detail,
+      "The photo's detail over the network render: head, face or off (avatars saved since 2026-12-05 keep what it "
+      "needs)");
+    v("fusion", fusion, "Fusion net weights that finish the detail frame (\"\" = the geometric composite)");
+    v("size", size, "Output side with the detail path, in pixels");
     session.Visit(v);
     common.Visit(v);
   }
   void Validate() const;
+  // The detail path's options for SavedAvatarSource.
+  BackendOptions Backend() const;
 };
 
 int RunRender(const std::vector<std::string>& args);

@@ -93,6 +93,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   FaceWarp out;
   out.valid = cv::Mat::zeros(size, CV_8UC1);
   out.face = cv::Mat::zeros(size, CV_8UC1);
+  cv::Mat eye_mouth = cv::Mat::zeros(size, CV_8UC1);
   for (int y = 0; y < size.height; ++y) {
     for (int x = 0; x < size.width; ++x) {
       const int t = raster.triangle.at<int>(y, x);
@@ -111,6 +112,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
       const cv::Point2d px = source_cam.ToPixel(p, photo_.size());
       const int sx = static_cast<int>(std::floor(px.x)), sy = static_cast<int>(std::floor(px.y));
       if (sx < 0 || sy < 0 || sx >= photo_.cols || sy >= photo_.rows) continue;
+      eye_mouth.at<uchar>(y, x) = eye_mouth_.at<uchar>(sy, sx) != 0 ? 255 : 0;
       if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
       if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
       if (!same_expression && !options_.eyes_mouth_from_photo && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
@@ -119,7 +121,9 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
       out.valid.at<uchar>(y, x) = 255;
     }
   }
-  return WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
+  FaceWarp warp = WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
+  warp.eye_mouth = std::move(eye_mouth);
+  return warp;
 }
 
 FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,

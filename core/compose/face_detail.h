@@ -39,6 +39,9 @@ struct FaceWarp {
   cv::Mat valid;   // [H,W] CV_8UC1 255 where the photo saw the target pixel's surface point
   cv::Mat weight;  // [H,W] CV_32FC1 feathered blend weight in [0,1] (0 outside `valid`)
   cv::Mat face;    // [H,W] CV_8UC1 255 where the face mesh covers the target pixel
+  // [H,W] CV_8UC1 255 where the face mesh's surface point lies in the photo's eye/mouth region
+  // (seen or not); empty for warps without a face mesh.
+  cv::Mat eye_mouth;
 };
 
 class FaceDetail {

@@ -1,5 +1,6 @@
 #include "core/model/fusion_net.h"
 
+#include "core/model/checkpoint.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -14,9 +15,20 @@ nn::Sequential DoubleConv(int64_t in, int64_t out) {
                         nn::LeakyReLU(nn::LeakyReLUOptions().negative_slope(0.2)));
 }
 
-constexpr double kMaskBias = -6.0;
+constexpr double kMaskBias = -2.0;
 
 }  // namespace
+
+torch::Tensor FusionInputFromBytes(const torch::Tensor& bytes, int64_t image_channels) {
+  AVATAR_CHECK_INPUT(bytes.defined() && bytes.scalar_type() == torch::kUInt8 && bytes.dim() == 4 &&
+                     image_channels >= 0 && image_channels <= bytes.size(1))
+      << "fusion input bytes must be uint8 [B,C,H,W] with at least " << image_channels << " channels";
+  torch::Tensor x = bytes.to(torch::kFloat32) / 255.0;
+  if (image_channels == 0) return x;
+  torch::Tensor images = x.slice(1, 0, image_channels) * 2.0 - 1.0;
+  if (image_channels == x.size(1)) return images;
+  return torch::cat({images, x.slice(1, image_channels)}, 1);
+}
 
 void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(in_channels >= 1) << "the fusion net needs input channels, got " << in_channels;
@@ -39,7 +51,10 @@ FusionNetImpl::FusionNetImpl(const FusionNetOptions& options) : options_(options
   for (size_t l = w.size() - 1; l-- > 0;) up_->push_back(DoubleConv(w[l + 1] + w[l], w[l]));
   head_ = register_module("head", nn::Conv2d(nn::Conv2dOptions(w[0], 4, 1)));
   torch::NoGradGuard no_grad;
-  head_->weight.mul_(0.1);
+  // The residual starts at exactly 0 (so the untrained net returns the composite) while the mask
+  // starts partly open (sigmoid(-2) = 0.12), so the residual's weights get gradients at once.
+  head_->weight.slice(0, 0, 3).zero_();
+  head_->weight.slice(0, 3, 4).mul_(0.1);
   head_->bias.zero_();
   head_->bias[3].fill_(kMaskBias);
 }
@@ -82,6 +97,55 @@ int64_t FusionNetImpl::ParameterCount() const {
   int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
   return n;
+}
+
+void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, const FusionNetInfo& info,
+                   bool half_precision) {
+  TensorArchive archive;
+  archive.kind = "fusion-net";
+  archive.meta = {{"step", info.step},
+                  {"data_provenance", info.data_provenance},
+                  {"in_channels", net->options().in_channels},
+                  {"widths", net->options().widths},
+                  {"dtype", half_precision ? "float16" : "float32"}};
+  torch::NoGradGuard no_grad;
+  for (const auto& item : net->named_parameters()) {
+    torch::Tensor t = item.value().detach().to(torch::kCPU, torch::kFloat32);
+    AVATAR_CHECK_INPUT(torch::isfinite(t).all().item<bool>())
+        << path.string() << ": not written: fusion net weight " << item.key() << " has a non-finite value";
+    archive.tensors.emplace_back(item.key(), half_precision ? t.to(torch::kFloat16) : t.contiguous());
+  }
+  WriteTensorArchive(path, archive);
+}
+
+FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) {
+  std::string fingerprint;
+  const TensorArchive archive = ReadTensorArchive(path, "fusion-net", &fingerprint);
+  FusionNetOptions options;
+  try {
+    options.in_channels = archive.meta.at("in_channels").get<int64_t>();
+    options.widths = archive.meta.at("widths").get<std::vector<int64_t>>();
+    options.Validate();
+  } catch (const std::exception& e) {
+    throw ModelLoad(path.string() + ": the fusion net's shape is missing or invalid (" + e.what() +
+                    "): the file is damaged; train or install it again");
+  }
+  FusionNet net(options);
+  torch::NoGradGuard no_grad;
+  for (auto& item : net->named_parameters()) {
+    const torch::Tensor& stored = archive.Get(item.key(), path.string());
+    if (stored.sizes() != item.value().sizes())
+      throw ModelLoad(path.string() + ": fusion net weight " + item.key() + " has the wrong shape");
+    item.value().copy_(stored.to(torch::kFloat32));
+  }
+  if (info != nullptr) {
+    info->step = archive.meta.value("step", int64_t{0});
+    info->data_provenance = archive.meta.value("data_provenance", std::string());
+    info->fingerprint = fingerprint;
+    info->options = options;
+  }
+  net->eval();
+  return net;
 }
 
 }  // namespace avatar

@@ -4,18 +4,22 @@
 // network render), the network render itself and the masks that say where each came from, and
 // predicts a residual and a blend mask:
 //   out = composite + sigmoid(m) * 2 tanh(r)
-// The mask's bias starts at -6 (sigmoid 0.0025), so an untrained net returns the composite almost
-// unchanged and training can only move it where that lowers the loss.
+// The residual head starts at zero, so an untrained net returns the composite exactly, and the
+// mask's bias at -2 (sigmoid 0.12), so that the residual learns from the first step (a mask
+// started nearly shut, bias -6, left the validation loss flat over the first 250 steps of
+// training: Adam moves a bias by about the learning rate per step).
 //
 // Input channels (FusionInputChannels, in this order; images in [-1,1], masks in [0,1]):
-//   0-2  the geometric composite (BGR as everywhere in the pipeline)
-//   3-5  the network render upsampled to the output size
+//   0-2  the geometric composite (RGB, as every network tensor)
+//   3-5  the network render upsampled to the output size (RGB)
 //   6    the face warp's blend weight        7  the depth warp's blend weight
 //   8    the face mesh's coverage            9  the target's eye and mouth region
 //   10   the frame's opacity
 // Architecture: per level two 3x3 convs with LeakyReLU(0.2), a stride-2 3x3 conv down; bilinear
 // x2 up, concatenation with the level's skip, two 3x3 convs; a 1x1 head to 4 channels.
 
+#include <filesystem>
+#include <string>
 #include <vector>
 
 #include <torch/torch.h>
@@ -23,6 +27,16 @@
 namespace avatar {
 
 inline constexpr int64_t kFusionInputChannels = 11;
+
+// Number of image channels at the front of the input (composite and network render); the rest
+// are masks.
+inline constexpr int64_t kFusionImageChannels = 6;
+
+// The stored form of fusion inputs and targets: uint8 [B,C,H,W] (images and masks as 0..255) ->
+// float [B,C,H,W] with the first `image_channels` channels in [-1,1] and the rest in [0,1]. Inference
+// and training both go through the bytes, so they see the same quantised input. Throws
+// InvalidInput for another dtype or rank.
+torch::Tensor FusionInputFromBytes(const torch::Tensor& bytes, int64_t image_channels = kFusionImageChannels);
 
 struct FusionNetOptions {
   int64_t in_channels = kFusionInputChannels;
@@ -51,5 +65,21 @@ class FusionNetImpl : public torch::nn::Module {
   torch::nn::Conv2d head_{nullptr};
 };
 TORCH_MODULE(FusionNet);
+
+// What a fusion weights file says about itself.
+struct FusionNetInfo {
+  int64_t step = 0;             // training step of the weights
+  std::string data_provenance;  // what they were trained on
+  std::string fingerprint;      // the file's checksum (16 hex digits), on reading
+  FusionNetOptions options;
+};
+
+// Writes the net's weights (float16 when `half_precision`) as a "fusion-net" tensor archive,
+// atomically. Throws InvalidInput for non-finite weights, Io.
+void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, const FusionNetInfo& info,
+                   bool half_precision);
+// Reads a file of SaveFusionNet into a float32 net. Throws Io (missing), ModelLoad (malformed,
+// another kind, tensors that do not fit the stored widths).
+FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info = nullptr);
 
 }  // namespace avatar

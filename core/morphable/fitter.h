@@ -72,6 +72,11 @@ std::vector<cv::Point3f> WorldVertices(const MorphableModel& model, const FitRes
 // Fits one face. `landmarks` are in the pixels of an image of `image_size`; the camera has the
 // published normalised intrinsics for that image (meant for the 512 aligned crop). Throws
 // InvalidInput for a wrong number of points, non-finite or degenerate (collapsed) landmarks.
+// A fit stored as its coefficients, scale and camera label (dataset records, .avatar files):
+// rotation and translation are read back from the label; no landmark errors.
+FitResult FitFromLabel(const Alpha& alpha, const Beta& beta, float scale, const CameraLabel& label,
+                       cv::Size image_size);
+
 FitResult Fit(const MorphableModel& model, const face::Landmarks& landmarks, cv::Size image_size,
               const FitOptions& options = {});
 

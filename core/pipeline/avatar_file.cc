@@ -9,6 +9,79 @@
 #include "core/util/error.h"
 
 namespace avatar {
+namespace {
+
+torch::Tensor MatTensor(const cv::Mat& m, torch::ScalarType type) {
+  const cv::Mat c = m.isContinuous() ? m : m.clone();
+  std::vector<int64_t> shape = {c.rows, c.cols};
+  if (c.channels() > 1) shape.push_back(c.channels());
+  return torch::from_blob(c.data, shape, type).clone();
+}
+
+cv::Mat TensorMat(const torch::Tensor& t, int type) {
+  return cv::Mat(static_cast<int>(t.size(0)), static_cast<int>(t.size(1)), type, const_cast<void*>(t.data_ptr()))
+      .clone();
+}
+
+void WritePortrait(const AvatarPortrait& p, TensorArchive* archive) {
+  const morphable::FitResult& f = p.fit;
+  archive->meta["portrait_fit"] = {{"alpha", f.alpha},
+                                   {"beta", f.beta},
+                                   {"scale", f.scale},
+                                   {"camera", std::vector<float>(f.camera.begin(), f.camera.end())},
+                                   {"image_size", {f.image_size.width, f.image_size.height}}};
+  archive->tensors.emplace_back("portrait.unmatted", MatTensor(p.portrait.image_unmatted, torch::kUInt8));
+  archive->tensors.emplace_back("portrait.matte", MatTensor(p.portrait.matte, torch::kFloat32));
+  archive->tensors.emplace_back("portrait.eye_mouth", MatTensor(p.portrait.eye_mouth_mask, torch::kUInt8));
+  std::vector<float> points;
+  for (const cv::Point3f& q : p.portrait.landmarks.points) points.insert(points.end(), {q.x, q.y, q.z});
+  archive->tensors.emplace_back(
+      "portrait.landmarks",
+      torch::tensor(points, torch::kFloat32).view({static_cast<int64_t>(p.portrait.landmarks.points.size()), 3}));
+}
+
+// The stored analysis, or null for files written before it was stored. Throws ModelLoad naming
+// the file when it is there but damaged.
+std::shared_ptr<const AvatarPortrait> ReadPortrait(const TensorArchive& archive, const std::string& file) {
+  if (!archive.meta.contains("portrait_fit")) return nullptr;
+  auto out = std::make_shared<AvatarPortrait>();
+  try {
+    const nlohmann::json& j = archive.meta.at("portrait_fit");
+    const auto camera = j.at("camera").get<std::vector<float>>();
+    const auto size = j.at("image_size").get<std::vector<int>>();
+    if (camera.size() != 25 || size.size() != 2 || size[0] < 16 || size[1] < 16)
+      throw ModelLoad(file + ": the stored portrait fit is malformed");
+    morphable::CameraLabel label{};
+    std::copy(camera.begin(), camera.end(), label.begin());
+    out->fit = morphable::FitFromLabel(j.at("alpha").get<morphable::Alpha>(), j.at("beta").get<morphable::Beta>(),
+                                       j.at("scale").get<float>(), label, cv::Size(size[0], size[1]));
+  } catch (const nlohmann::json::exception& e) {
+    throw ModelLoad(file + ": the stored portrait fit is incomplete: " + e.what());
+  }
+  const torch::Tensor& crop = archive.Get("portrait.unmatted", file);
+  const torch::Tensor& matte = archive.Get("portrait.matte", file);
+  const torch::Tensor& eye_mouth = archive.Get("portrait.eye_mouth", file);
+  const torch::Tensor& landmarks = archive.Get("portrait.landmarks", file);
+  const int64_t h = out->fit.image_size.height, w = out->fit.image_size.width;
+  if (crop.sizes() != c10::IntArrayRef({h, w, 3}) || crop.scalar_type() != torch::kUInt8 ||
+      matte.sizes() != c10::IntArrayRef({h, w}) || matte.scalar_type() != torch::kFloat32 ||
+      eye_mouth.sizes() != c10::IntArrayRef({h, w}) || eye_mouth.scalar_type() != torch::kUInt8 ||
+      landmarks.dim() != 2 || landmarks.size(1) != 3 || landmarks.scalar_type() != torch::kFloat32) {
+    throw ModelLoad(file + ": the stored portrait (crop, matte, masks, landmarks) is malformed");
+  }
+  if (!torch::isfinite(matte).all().item<bool>() || !torch::isfinite(landmarks).all().item<bool>())
+    throw ModelLoad(file + ": the stored portrait holds non-finite values");
+  out->portrait.image_unmatted = TensorMat(crop, CV_8UC3);
+  out->portrait.matte = TensorMat(matte, CV_32FC1);
+  out->portrait.eye_mouth_mask = TensorMat(eye_mouth, CV_8UC1);
+  const torch::Tensor lm = landmarks.contiguous();
+  const float* q = lm.data_ptr<float>();
+  for (int64_t i = 0; i < lm.size(0); ++i) out->portrait.landmarks.points.emplace_back(q[3 * i], q[3 * i + 1], q[3 * i + 2]);
+  return out;
+}
+
+}  // namespace
+
 void WriteAvatarFile(const AvatarState& s, const std::filesystem::path& path) {
   TensorArchive archive;
   archive.kind = "goha-avatar";
@@ -26,6 +99,7 @@ void WriteAvatarFile(const AvatarState& s, const std::filesystem::path& path) {
   archive.tensors.emplace_back(
       "avatar.expression_source",
       torch::from_blob(const_cast<char*>(bytes.data()), {static_cast<int64_t>(bytes.size())}, torch::kUInt8).clone());
+  if (s.portrait) WritePortrait(*s.portrait, &archive);
   WriteTensorArchive(path, archive);
 }
 
@@ -90,6 +164,7 @@ std::shared_ptr<AvatarState> ReadAvatarFile(const std::filesystem::path& path, c
       throw ModelLoad(file + ": expression source could not be restored: " + e.what());
     }
   }
+  state->portrait = ReadPortrait(archive, file);
   state->id = NextAvatarId();
   return state;
 }

@@ -5,6 +5,11 @@
 //   tensors: avatar.canonical, avatar.appearance  [1,3,C,P,P] float32 (T_c, T_p)
 //            avatar.source_image                  [512,512,3] uint8 (BGR aligned portrait)
 //            avatar.expression_source             [N] uint8 (ExpressionImageSource::Serialize())
+//   optional, the portrait's analysis for the photo's detail path (AvatarPortrait; written since
+//   2026-12-05, older files load without it and render without the detail path):
+//   meta:    portrait_fit {alpha, beta, scale, camera (25), image_size [w, h]}
+//   tensors: portrait.unmatted [S,S,3] uint8 (BGR crop), portrait.matte [S,S] float32,
+//            portrait.eye_mouth [S,S] uint8, portrait.landmarks [N,3] float32
 // The expression source is rebuilt by the loader registered for its kind
 // (RegisterExpressionSourceLoader, session.h). Internal to core/pipeline: callers use
 // Session::SaveAvatar / LoadAvatar and ReadAvatarFileInfo.

@@ -1,5 +1,9 @@
 #include "core/pipeline/detail_source.h"
 
+#include <mutex>
+
+#include "core/model/fusion_net.h"
+#include "core/pipeline/fusion_input.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/util/error.h"
@@ -14,6 +18,32 @@ const morphable::MorphableModel& ModelOf(const SourceAnalysis& analysis) {
 }
 
 }  // namespace
+
+// The fusion net, shared by copies of a source; one frame at a time through it.
+struct DetailFrameSource::Fusion {
+  FusionNet net{nullptr};
+  FusionNetInfo info;
+  std::mutex mutex;
+
+  // The finished frame of a geometric composite's layers (BGR8 of the frame's size).
+  cv::Mat Finish(const DetailLayers& layers) {
+    torch::NoGradGuard no_grad;
+    torch::Tensor x = FusionInputFromBytes(FusionInputBytes(layers).unsqueeze(0));
+    const int64_t h = x.size(2), w = x.size(3);
+    const int64_t factor = int64_t{1} << (static_cast<int64_t>(info.options.widths.size()) - 1);
+    const int64_t ph = (factor - h % factor) % factor, pw = (factor - w % factor) % factor;
+    if (ph > 0 || pw > 0) {
+      x = torch::nn::functional::pad(
+          x, torch::nn::functional::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate));
+    }
+    torch::Tensor y;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      y = net->forward(x);
+    }
+    return BgrFromRgb(y[0].slice(1, 0, h).slice(2, 0, w).clamp(-1.0, 1.0));
+  }
+};
 
 const std::vector<std::string>& DetailModes() {
   static const std::vector<std::string> modes = {"head", "face", "off"};
@@ -67,13 +97,23 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
       AVATAR_LOG(kWarning) << warnings.back();
     }
   }
+  if (!options_.fusion.empty()) {
+    fusion_ = std::make_shared<Fusion>();
+    fusion_->net = LoadFusionNet(options_.fusion, &fusion_->info);
+  }
   if (options_.face_fill) {
     fill_ = std::make_unique<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture);
   }
   SetWarnings(std::move(warnings));
 }
 
-std::string DetailFrameSource::Label() const { return base_->Label() + DetailLabel(options_.mode); }
+std::string DetailFrameSource::Label() const {
+  std::string label = base_->Label() + DetailLabel(options_.mode);
+  if (fusion_ != nullptr)
+    label += ", finished by the fusion net (step " + std::to_string(fusion_->info.step) + ", fusion:" +
+             fusion_->info.fingerprint + ")";
+  return label;
+}
 
 compose::FaceWarp DetailFrameSource::Warp(const FrameRequest& request) const {
   const CameraLabel25 camera = CameraForView(request.view, detail_.fit().camera);
@@ -96,9 +136,28 @@ compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, cons
 }
 
 RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext& ctx) const {
-  RenderedFrame frame = base_->Render(request, ctx);
+  DetailLayers layers = RenderLayers(request, ctx);
+  if (fusion_ != nullptr) {
+    ctx.ThrowIfCancelled();
+    layers.frame.bgr = fusion_->Finish(layers);
+  }
+  return std::move(layers.frame);
+}
+
+DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunContext& ctx) const {
+  DetailLayers layers;
+  RenderedFrame& frame = layers.frame;
+  frame = base_->Render(request, ctx);
   ctx.ThrowIfCancelled();
-  if (depth_ != nullptr) frame.bgr = compose::Composite(frame.bgr, DepthWarp(request, frame), &frame.alpha);
+  layers.network = frame.bgr.clone();
+  const cv::Size size(request.width, request.height);
+  if (depth_ != nullptr) {
+    const compose::FaceWarp depth = DepthWarp(request, frame);
+    frame.bgr = compose::Composite(frame.bgr, depth, &frame.alpha);
+    layers.depth_weight = depth.weight;
+  } else {
+    layers.depth_weight = cv::Mat::zeros(size, CV_32FC1);
+  }
   const compose::FaceWarp warp = Warp(request);
   if (fill_ != nullptr) {
     // Under the photo's warp, the textured face mesh over the whole face: what the photo did not
@@ -112,7 +171,10 @@ RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext&
     frame.bgr = compose::Composite(frame.bgr, fill, &frame.alpha);
   }
   frame.bgr = compose::Composite(frame.bgr, warp, &frame.alpha);
-  return frame;
+  layers.face_weight = warp.weight;
+  layers.face = warp.face;
+  layers.eye_mouth = warp.eye_mouth;
+  return layers;
 }
 
 }  // namespace avatar

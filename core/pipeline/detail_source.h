@@ -11,6 +11,7 @@
 
 #include "core/compose/depth_detail.h"
 #include "core/compose/face_detail.h"
+#include "core/pipeline/detail_layers.h"
 #include "core/pipeline/frame_source.h"
 #include "core/pipeline/source_analysis.h"
 
@@ -33,6 +34,9 @@ struct DetailOptions {
   bool face_fill = true;
   // Size of the base render whose depth is the source view's proxy (once per source).
   int source_depth_size = 128;
+  // Weights of the fusion net that finishes each frame (core/model/fusion_net.h; "" = the
+  // geometric composite is the frame).
+  std::string fusion;
   // Throws InvalidOptions.
   void Validate() const;
 };
@@ -53,6 +57,10 @@ class DetailFrameSource : public FrameSource {
   ViewPose SourcePose() const override { return base_->SourcePose(); }
   SourceOverlay Overlay() const override { return base_->Overlay(); }
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+  // The geometric composite and the layers it was composed from (Render's frame without the
+  // fusion net; with it, Render finishes this frame).
+  DetailLayers RenderLayers(const FrameRequest& request, RunContext& ctx) const;
+  bool HasFusion() const { return fusion_ != nullptr; }
 
   // The face mesh's warp of one request alone (for tests and measurements).
   compose::FaceWarp Warp(const FrameRequest& request) const;
@@ -69,6 +77,8 @@ class DetailFrameSource : public FrameSource {
   DetailOptions options_;
   std::unique_ptr<compose::DepthDetail> depth_;
   std::unique_ptr<FrameSource> fill_;  // the textured face mesh (face_fill)
+  struct Fusion;
+  std::shared_ptr<Fusion> fusion_;     // the learned finish (options.fusion)
 };
 
 // The start of the label suffix of every frame with the detail path; DetailLabel(mode) is the

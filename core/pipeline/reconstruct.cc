@@ -26,7 +26,7 @@ Reconstruction ReconstructAnalysed(const Session& session, SourceAnalysis analys
   out.analysis = std::move(analysis);
   {
     RunContext::ProgressRange range(ctx, 0.0, refine.Enabled() ? 0.1 : 1.0);
-    out.avatar = session.ReconstructFromAnalysis(out.analysis.portrait, out.analysis.fit, ctx);
+    out.avatar = session.ReconstructFromAnalysis(out.analysis, ctx);
   }
   if (refine.Enabled()) {
     // Refinement of the planes on the photo (progress "refine", step k/N; cancellable).

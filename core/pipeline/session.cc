@@ -86,6 +86,7 @@ int Avatar::CoefficientCount() const {
 std::array<float, 25> Avatar::SourceCamera() const { return state_ ? state_->camera : std::array<float, 25>{}; }
 
 std::string Avatar::RefinementInfo() const { return state_ ? state_->refinement : std::string(); }
+bool Avatar::HasPortraitAnalysis() const { return state_ && state_->portrait != nullptr; }
 
 
 std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin) {
@@ -213,7 +214,19 @@ Avatar Session::Reconstruct(const cv::Mat& bgr, RunContext& ctx) const {
     analysis = AnalyseSource(bgr, impl_->options.data_dir, ctx);
   }
   RunContext::ProgressRange range(ctx, 0.5, 1.0);
-  return ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
+  return ReconstructFromAnalysis(analysis, ctx);
+}
+
+Avatar Session::ReconstructFromAnalysis(const SourceAnalysis& analysis, RunContext& ctx) const {
+  Avatar avatar = ReconstructFromAnalysis(analysis.portrait, analysis.fit, ctx);
+  auto state = std::make_shared<AvatarState>(*avatar.state_);  // the planes are shared, not copied
+  auto kept = std::make_shared<AvatarPortrait>();
+  kept->portrait = analysis.portrait;
+  kept->portrait.embedding.clear();
+  kept->fit = analysis.morphable_fit;
+  state->portrait = std::move(kept);
+  avatar.state_ = std::move(state);
+  return avatar;
 }
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const ViewPose& view, RenderMode mode,
@@ -223,10 +236,14 @@ Frame Session::Animate(const Avatar& avatar, const Expression& expression, const
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,
                        RenderMode mode, RunContext* ctx) const {
+  return Animate(avatar, expression, camera, RenderSettingsFor(mode, impl_->model->config().render_size), ctx);
+}
+
+RenderSettings RenderSettingsFor(RenderMode mode, int render_size) {
   RenderSettings settings;
-  if (mode == RenderMode::kPreview) settings.resolution = std::min(64, impl_->model->config().render_size);
+  if (mode == RenderMode::kPreview) settings.resolution = std::min(64, render_size);
   settings.super_resolution = mode == RenderMode::kFinal;
-  return Animate(avatar, expression, camera, settings, ctx);
+  return settings;
 }
 
 Frame Session::Animate(const Avatar& avatar, const Expression& expression, const std::array<float, 25>& camera,

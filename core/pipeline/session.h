@@ -93,6 +93,9 @@ struct RenderSettings {
   // Throws InvalidOptions (resolution outside 0 or 4..1024, coarse outside 0 or 2..512, importance outside -1..512).
   void Validate() const;
 };
+// The settings a RenderMode stands for with a model of this render size (Animate with a mode
+// renders with them).
+RenderSettings RenderSettingsFor(RenderMode mode, int render_size);
 
 struct SessionOptions {
   // Model checkpoint (.ckpt). "" = <data dir>/models/goha.ckpt when the user installed one,
@@ -170,7 +173,8 @@ bool ParseRandomModelId(const std::string& model_id, std::string* config, int* s
 // (see ModelInfo::origin). Throws MissingData, saying where it looked, when there is none.
 std::filesystem::path ResolveCheckpoint(const SessionOptions& options, std::string* origin = nullptr);
 
-struct AvatarState;  // defined in avatar_state.h
+struct AvatarState;     // defined in avatar_state.h
+struct SourceAnalysis;  // defined in source_analysis.h
 
 // A reconstructed avatar: immutable, cheap to copy (shared state).
 class Avatar {
@@ -188,6 +192,9 @@ class Avatar {
   // JSON summary of the per-portrait refinement (core/pipeline/refine.h) these planes had, or ""
   // for the one-shot planes. Stored in avatar files.
   std::string RefinementInfo() const;
+  // True when the avatar keeps its portrait's analysis (crop, matte, morphable fit): the photo's
+  // detail path can render it. Avatars from Reconstruct and files written since 2026-12-05 do.
+  bool HasPortraitAnalysis() const;
   const AvatarState* state() const { return state_.get(); }
 
  private:
@@ -211,6 +218,9 @@ class Session {
   // The network part: T_c from the portrait, the lifting depth and T_p at the source camera.
   // Throws InvalidInput (bad portrait), Cancelled.
   Avatar ReconstructFromAnalysis(const face::AlignedPortrait& portrait, const SourceFit& fit, RunContext& ctx) const;
+  // The same from a whole analysis; the avatar keeps the crop, matte and morphable fit the detail
+  // path needs (Avatar::HasPortraitAnalysis), and avatar files store them.
+  Avatar ReconstructFromAnalysis(const SourceAnalysis& analysis, RunContext& ctx) const;
   // Face analysis + morphable fit + ReconstructFromAnalysis. Throws InvalidInput (no face),
   // MissingData (face models not installed), Cancelled.
   Avatar Reconstruct(const cv::Mat& bgr, RunContext& ctx) const;

@@ -31,6 +31,15 @@ SourceOverlay OverlayOf(const face::PortraitReport& report, const face::AlignedP
   return overlay;
 }
 
+// What every analysis derives from its fit: the model, the face texture and the network inputs.
+void Complete(const morphable::MorphableModel& model, morphable::FitResult fit, SourceAnalysis* out) {
+  out->model = &model;
+  out->morphable_fit = std::move(fit);
+  out->texture = morphable::SampleTexture(model, out->morphable_fit, out->portrait.image_unmatted);
+  out->fit.camera = out->morphable_fit.camera;
+  out->fit.expressions = std::make_shared<MorphableExpressionSource>(model, out->morphable_fit, out->texture);
+}
+
 }  // namespace
 
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, RunContext& ctx) {
@@ -56,14 +65,42 @@ SourceAnalysis AnalyseSource(const cv::Mat& bgr, const face::FaceAnalyzerOptions
     AVATAR_LOG(kWarning) << w;
   }
   ctx.Report("fit morphable model", 0.8);
-  out.model = &morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));
-  out.morphable_fit = morphable::Fit(*out.model, out.portrait.landmarks, out.portrait.image.size());
+  const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));
+  morphable::FitResult fit = morphable::Fit(model, out.portrait.landmarks, out.portrait.image.size());
   ctx.ThrowIfCancelled();
   ctx.Report("fit morphable model", 0.9, "sampling the face texture");
-  out.texture = morphable::SampleTexture(*out.model, out.morphable_fit, out.portrait.image_unmatted);
-  out.fit.camera = out.morphable_fit.camera;
-  out.fit.expressions = std::make_shared<MorphableExpressionSource>(*out.model, out.morphable_fit, out.texture);
+  Complete(model, std::move(fit), &out);
   ctx.Report("fit morphable model", 1.0);
+  return out;
+}
+
+SourceAnalysis AnalysisFromFit(face::AlignedPortrait portrait, morphable::FitResult fit, const std::string& data_dir) {
+  const cv::Mat& crop = portrait.image_unmatted;
+  AVATAR_CHECK_INPUT(!crop.empty() && crop.type() == CV_8UC3) << "the stored portrait has no BGR8 crop";
+  AVATAR_CHECK_INPUT(fit.image_size == crop.size())
+      << "the stored fit refers to a " << fit.image_size.width << "x" << fit.image_size.height << " image, the crop is "
+      << crop.cols << "x" << crop.rows;
+  AVATAR_CHECK_INPUT(portrait.matte.size() == crop.size() && portrait.matte.type() == CV_32FC1)
+      << "the stored matte must be CV_32FC1 of the crop's size";
+  AVATAR_CHECK_INPUT(portrait.eye_mouth_mask.empty() ||
+                     (portrait.eye_mouth_mask.size() == crop.size() && portrait.eye_mouth_mask.type() == CV_8UC1))
+      << "the stored eye/mouth mask must be CV_8UC1 of the crop's size";
+  if (portrait.eye_mouth_mask.empty()) portrait.eye_mouth_mask = cv::Mat::zeros(crop.size(), CV_8UC1);
+  if (portrait.image.empty()) {
+    // The matted crop: the person over black, as the analyser makes it.
+    cv::Mat matte3, f;
+    cv::cvtColor(portrait.matte, matte3, cv::COLOR_GRAY2BGR);
+    crop.convertTo(f, CV_32FC3);
+    f = f.mul(matte3);
+    f.convertTo(portrait.image, CV_8UC3);
+  }
+  const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(data_dir));
+  AVATAR_CHECK_INPUT(static_cast<int>(fit.alpha.size()) == model.num_identity() &&
+                     static_cast<int>(fit.beta.size()) == model.num_expression())
+      << "the stored fit does not belong to the default morphable model";
+  SourceAnalysis out;
+  out.portrait = std::move(portrait);
+  Complete(model, std::move(fit), &out);
   return out;
 }
 

@@ -40,4 +40,10 @@ SourceAnalysis AnalyseSource(const cv::Mat& bgr, const std::string& data_dir, Ru
 // call, so that training and inference preprocess a portrait identically.
 SourceAnalysis AnalyseSource(const cv::Mat& bgr, const face::FaceAnalyzerOptions& analyzer, RunContext& ctx);
 
+// The analysis of a portrait analysed before (the data factory's stored items): its aligned crop,
+// matte and eye/mouth mask, and the morphable fit made then (fit.image_size = the crop's size).
+// Everything derived from them (model, texture, network inputs) is computed here, as AnalyseSource
+// does after the fit. Throws InvalidInput (sizes, a fit of another model), MissingData.
+SourceAnalysis AnalysisFromFit(face::AlignedPortrait portrait, morphable::FitResult fit, const std::string& data_dir);
+
 }  // namespace avatar

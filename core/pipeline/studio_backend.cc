@@ -9,6 +9,7 @@
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/morphable/morphable.h"
+#include "core/pipeline/avatar_state.h"
 #include "core/pipeline/detail_source.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/pipeline/quality.h"
@@ -66,6 +67,16 @@ std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analys
   return source;
 }
 
+// The photo's detail path over a network source, as options.detail and options.fusion say.
+std::shared_ptr<const FrameSource> WithPhotoDetail(std::shared_ptr<const FrameSource> network,
+                                                   const SourceAnalysis& analysis, const BackendOptions& options) {
+  if (options.detail == "off") return network;
+  DetailOptions detail;
+  detail.mode = options.detail;
+  detail.fusion = options.fusion;
+  return std::make_shared<DetailFrameSource>(std::move(network), analysis, detail);
+}
+
 std::shared_ptr<const FrameSource> NeuralAvatar(SourceAnalysis analysis, const BackendOptions& options,
                                                 std::shared_ptr<const Session> session, RunContext& ctx) {
   ctx.Report("reconstruct the neural avatar", 0.7);
@@ -81,10 +92,7 @@ std::shared_ptr<const FrameSource> NeuralAvatar(SourceAnalysis analysis, const B
                                                      r.analysis.overlay);
   if (r.render) source->SetRenderSettings(*r.render);
   source->SetWarnings(r.analysis.warnings);
-  if (options.detail == "off") return source;
-  DetailOptions detail;
-  detail.mode = options.detail;
-  return std::make_shared<DetailFrameSource>(std::move(source), r.analysis, detail);
+  return WithPhotoDetail(std::move(source), r.analysis, options);
 }
 
 }  // namespace
@@ -113,6 +121,8 @@ void BackendOptions::Validate() const {
       << "--config must be lite or paper, got '" << config << "'";
   if (!quality.empty()) QualityLevelByName(quality);
   ValidateDetailMode(detail);
+  AVATAR_CHECK_OPTION(fusion.empty() || detail != "off")
+      << "--fusion finishes the detail path's frames: it needs --detail head or face, not off";
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,
@@ -159,12 +169,18 @@ PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions&
   options.Validate();
   AVATAR_CHECK_INPUT(!portrait.empty() && portrait.type() == CV_8UC3) << "the portrait must be a BGR8 image";
   ctx.Report("load the neural model", 0.0);
-  std::shared_ptr<const Session> session = SharedSession(options);
+  SharedSession(options);  // a bad model fails before the slow analysis
   SourceAnalysis analysis;
   {
     RunContext::ProgressRange range(ctx, 0.1, 0.7);
     analysis = AnalyseSource(portrait, options.data_dir, ctx);
   }
+  return CreatePortraitPaths(std::move(analysis), options, ctx);
+}
+
+PortraitPaths CreatePortraitPaths(SourceAnalysis analysis, const BackendOptions& options, RunContext& ctx) {
+  options.Validate();
+  std::shared_ptr<const Session> session = SharedSession(options);
   PortraitPaths paths;
   paths.preview = MorphablePreview(analysis, kMorphablePreviewLabel);
   paths.portrait = analysis.portrait;
@@ -179,7 +195,33 @@ PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions&
   const auto bake_start = std::chrono::steady_clock::now();
   paths.detail = std::make_shared<DetailFrameSource>(paths.network, kept, head);
   paths.bake_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - bake_start).count();
+  if (!options.fusion.empty()) {
+    DetailOptions learned = head;
+    learned.fusion = options.fusion;
+    paths.learned = std::make_shared<DetailFrameSource>(paths.network, kept, learned);
+  }
   return paths;
+}
+
+std::shared_ptr<const FrameSource> SavedAvatarSource(std::shared_ptr<const Session> session, const Avatar& avatar,
+                                                     const BackendOptions& options, const RenderSettings* settings) {
+  options.Validate();
+  AVATAR_CHECK_INPUT(session != nullptr && avatar.valid()) << "SavedAvatarSource needs a session and a loaded avatar";
+  const bool detail = options.detail != "off" && avatar.HasPortraitAnalysis();
+  SourceAnalysis analysis;
+  if (detail) {
+    const AvatarPortrait& kept = *avatar.state()->portrait;
+    analysis = AnalysisFromFit(kept.portrait, kept.fit, options.data_dir);
+  }
+  auto network = std::make_shared<SessionFrameSource>(std::move(session), avatar, options.random_weights,
+                                                      analysis.overlay);
+  if (settings != nullptr) network->SetRenderSettings(*settings);
+  if (detail) return WithPhotoDetail(std::move(network), analysis, options);
+  if (options.detail != "off") {
+    network->SetWarnings({"This avatar file does not keep its portrait's analysis (it was saved before 2026-12-05), so "
+                          "it renders without the photo's detail: reconstruct the portrait again to get it."});
+  }
+  return network;
 }
 
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {

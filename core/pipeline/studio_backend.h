@@ -20,6 +20,8 @@
 
 namespace avatar {
 
+struct SourceAnalysis;  // source_analysis.h
+
 struct BackendOptions {
   // What renders the head: "neural" (the trained GOHA model) or "morphable" (the preview).
   std::string renderer = "neural";
@@ -40,6 +42,8 @@ struct BackendOptions {
   // onto the face through the face mesh and onto hair, ears and neck through the network's
   // depth, where it saw the surface), "face" (the face only) or "off" (the network alone).
   std::string detail = "head";
+  // Weights of the fusion net that finishes each detail frame ("" = the geometric composite).
+  std::string fusion;
 
   template <typename V>
   void Visit(V&& v) {
@@ -53,6 +57,7 @@ struct BackendOptions {
     v("detail", detail,
       "The photo's detail over the neural head: head (warped onto face, hair, ears and neck where the photo saw them), "
       "face (the face only) or off");
+    v("fusion", fusion, "Fusion net weights that finish each detail frame (\"\" = the geometric composite)");
   }
   // Throws InvalidOptions for an unknown config, quality level or detail mode.
   void Validate() const;
@@ -69,13 +74,28 @@ std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, co
 // CreateFrameSource.
 struct PortraitPaths {
   std::shared_ptr<const FrameSource> network;
-  std::shared_ptr<const FrameSource> face;    // the detail path on the face only
-  std::shared_ptr<const FrameSource> detail;  // the detail path on the head (the default)
+  // The detail paths are DetailFrameSource (detail_source.h; not included here: the GUI includes
+  // this header after Qt and must not see LibTorch's headers).
+  std::shared_ptr<const FrameSource> face;     // the detail path on the face only
+  std::shared_ptr<const FrameSource> detail;   // the detail path on the head (the default)
+  std::shared_ptr<const FrameSource> learned;  // the same finished by the fusion net (options.fusion set)
   std::shared_ptr<const FrameSource> preview;
   face::AlignedPortrait portrait;  // the photo's aligned crop, matte and masks they were built from
   double bake_seconds = 0.0;       // building the head detail path (its source-view depth bakes)
 };
 PortraitPaths CreatePortraitPaths(const cv::Mat& portrait, const BackendOptions& options, RunContext& ctx);
+// The same from a portrait analysed before (AnalyseSource, or AnalysisFromFit of a stored item).
+PortraitPaths CreatePortraitPaths(SourceAnalysis analysis, const BackendOptions& options, RunContext& ctx);
+
+// A loaded avatar (Session::LoadAvatar) as a frame source: the network renders it (with
+// `settings` when given, else as the studio does), wrapped in the photo's detail path
+// (options.detail, options.fusion) when the avatar keeps its portrait's analysis
+// (Avatar::HasPortraitAnalysis). An avatar without one renders with the network alone and the
+// source's Warnings() say why. Throws MissingData (morphable model not installed), ModelLoad
+// (fusion weights), InvalidInput (a stored analysis that does not fit the morphable model).
+std::shared_ptr<const FrameSource> SavedAvatarSource(std::shared_ptr<const Session> session, const Avatar& avatar,
+                                                     const BackendOptions& options,
+                                                     const RenderSettings* settings = nullptr);
 
 // The analyser for driving videos (face tracking + morphable fit), or a factory returning
 // null when this build cannot measure driving frames.

@@ -85,7 +85,7 @@ std::vector<json> Builder::SyntheticHeadFrames(const json& rec, int views, doubl
   morphable::CameraLabel source_label{};
   std::copy(label_values.begin(), label_values.end(), source_label.begin());
   const morphable::FitResult fit =
-      FitFromRecord(rec["alpha"].get<morphable::Alpha>(), rec["beta"].get<morphable::Beta>(),
+      morphable::FitFromLabel(rec["alpha"].get<morphable::Alpha>(), rec["beta"].get<morphable::Beta>(),
                     rec["scale"].get<float>(), source_label, cv::Size(kCropSize, kCropSize));
   const SyntheticHead head = BuildSyntheticHead(model_, fit, image, matte, eye);
   // The morphable texture for I_exp / I_neu comes from the same stored crop, as for real pairs.

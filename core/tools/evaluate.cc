@@ -1,6 +1,7 @@
 // Evaluation of a network on a dataset split (evaluate.h): RunEvaluation's loading, rendering and
 // per-pair measuring steps; the averages and output files are in evaluate_report.cc.
 #include "core/tools/evaluate.h"
+#include "core/tools/dataset_records.h"
 
 #include <algorithm>
 #include <cmath>
@@ -110,14 +111,6 @@ BaselineData LoadBaselineData(const fs::path& dir, const std::string& split, int
   return b;
 }
 
-morphable::CameraLabel LabelOf(const json& values, const std::string& what) {
-  const auto v = values.get<std::vector<float>>();
-  AVATAR_CHECK_INPUT(v.size() == morphable::CameraLabel{}.size()) << what << ": camera label has " << v.size() << " values";
-  morphable::CameraLabel l{};
-  std::copy(v.begin(), v.end(), l.begin());
-  return l;
-}
-
 // The morphable preview of the source at the target camera with the target expression.
 class MorphableBaseline {
  public:
@@ -128,8 +121,8 @@ class MorphableBaseline {
   torch::Tensor Render(const json& source, const json& target, const torch::Tensor& source_label,
                        const torch::Tensor& target_label) {
     const std::string sid = source.at("id").get<std::string>();
-    const morphable::CameraLabel src_cam = LabelOf(source.at("label"), sid);
-    const morphable::CameraLabel tgt_cam = LabelOf(target.at("label"), target.at("id").get<std::string>());
+    const morphable::CameraLabel src_cam = RecordLabel(source.at("label"), sid);
+    const morphable::CameraLabel tgt_cam = RecordLabel(target.at("label"), target.at("id").get<std::string>());
     const torch::Tensor shard_src = source_label.to(torch::kCPU, torch::kFloat32);
     const torch::Tensor shard_tgt = target_label.to(torch::kCPU, torch::kFloat32);
     AVATAR_CHECK_INPUT(torch::allclose(shard_src, morphable::LabelTensor(src_cam), 1e-4, 1e-5) &&
@@ -138,13 +131,8 @@ class MorphableBaseline {
         << " differ): rebuild the dataset";
     auto it = cache_.find(sid);
     if (it == cache_.end()) {
-      morphable::FitResult fit;
-      fit.alpha = source.at("alpha").get<std::vector<float>>();
-      fit.beta = source.at("beta").get<std::vector<float>>();
-      fit.scale = source.at("scale").get<float>();
-      fit.camera = src_cam;
       const cv::Mat image = LoadImageBgr(dir_ / source.at("files").at("image").get<std::string>());
-      fit.image_size = image.size();
+      const morphable::FitResult fit = RecordFit(source, image.size());
       AVATAR_CHECK_INPUT(static_cast<int>(fit.alpha.size()) == model_.num_identity() &&
                          static_cast<int>(fit.beta.size()) == model_.num_expression())
           << sid << ": the record's coefficients do not fit the installed morphable model";

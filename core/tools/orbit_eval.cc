@@ -117,7 +117,8 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
   OrbitEvalReport report;
   report.yaws = options.YawList();
   const size_t n_yaw = report.yaws.size();
-  const std::vector<std::string> keys = {"network", "preview", "paste", "face", "detail"};
+  std::vector<std::string> keys = {"network", "preview", "paste", "face", "detail"};
+  if (!options.fusion.empty()) keys.push_back("learned");
   std::vector<Accumulator> acc(keys.size());
   for (auto& a : acc) {
     a.identity.assign(n_yaw, 0.0);
@@ -134,6 +135,7 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
   BackendOptions backend;
   backend.checkpoint = options.checkpoint;
   backend.data_dir = options.data_dir;
+  backend.fusion = options.fusion;
 
   const int size = options.size;
   const int shown = std::min<int>(options.contact_photos, static_cast<int>(options.photos.size()));
@@ -164,7 +166,9 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
     const double photo_detail = MeanAbsLaplacian(crop, OutsideFaceMask(Opaque(matte8), crop_face.landmarks));
     AVATAR_CHECK_INPUT(photo_detail > 0.0) << file << ": the photo shows no person outside the face to compare with";
 
-    const FrameSource* sources[] = {paths.network.get(), paths.preview.get(), nullptr, paths.face.get(), paths.detail.get()};
+    const std::vector<const FrameSource*> sources = {paths.network.get(), paths.preview.get(), nullptr,
+                                                     paths.face.get(), paths.detail.get(), paths.learned.get()};
+    if (paths.learned) names[5] = paths.learned->Label();
     names[0] = paths.network->Label();
     names[1] = paths.preview->Label();
     names[2] = "the preview's face pasted over the network render (by the preview's alpha)";

@@ -45,6 +45,8 @@ struct OrbitEvalOptions {
   int contact_photos = 2;
   // Neural model checkpoint ("" = the installed or bundled model).
   std::string checkpoint;
+  // Fusion net weights: adds the learned path's row ("" = none).
+  std::string fusion;
   // Folder with the installed models and samples (set from the command's --data-dir).
   std::string data_dir;
   face::FaceMetricsOptions face;
@@ -58,6 +60,7 @@ struct OrbitEvalOptions {
     v("jaw_value", jaw_value, "Value of that control");
     v("contact_photos", contact_photos, "Photos shown in orbit.png");
     v("checkpoint", checkpoint, "Neural model checkpoint (default: the installed or bundled model)");
+    v("fusion", fusion, "Fusion net weights: adds the learned path's row");
     // The face analysis of the metrics (AED is not measured here).
     v("face_analysis_size", face.analysis_size, "Long side small images are upsampled to before face analysis");
     v("face_min_score", face.min_score, "Face detection score threshold of the face metrics");

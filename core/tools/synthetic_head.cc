@@ -373,20 +373,6 @@ morphable::Beta MirroredExpression(const morphable::MorphableModel& model, const
   return out;
 }
 
-morphable::FitResult FitFromRecord(const morphable::Alpha& alpha, const morphable::Beta& beta, float scale,
-                                   const CameraLabel& label, cv::Size image_size) {
-  const PinholeCamera cam = PinholeCamera::FromLabel(label);
-  morphable::FitResult fit;
-  fit.alpha = alpha;
-  fit.beta = beta;
-  fit.scale = scale;
-  fit.rotation = cam.world_to_cam;
-  fit.translation = -(cam.world_to_cam * cam.centre);
-  fit.camera = label;
-  fit.image_size = image_size;
-  return fit;
-}
-
 cv::Vec2d LabelYawPitch(const CameraLabel& label) {
   const cv::Vec3d c(label[3], label[7], label[11]);
   const double r = std::max(cv::norm(c), 1e-12);

@@ -93,11 +93,6 @@ morphable::CameraLabel MirroredLabel(const morphable::CameraLabel& label);
 // displacements equal the mirror image of `beta`'s (vertex i takes vertex mirror[i]'s, x negated).
 morphable::Beta MirroredExpression(const morphable::MorphableModel& model, const morphable::Beta& beta);
 
-// A fit whose rotation/translation are read back from its camera label (for fits stored as
-// records: alpha, beta, scale and label).
-morphable::FitResult FitFromRecord(const morphable::Alpha& alpha, const morphable::Beta& beta, float scale,
-                                   const morphable::CameraLabel& label, cv::Size image_size);
-
 // Camera yaw and pitch (degrees) of a label: the centre's azimuth about +y and elevation.
 cv::Vec2d LabelYawPitch(const morphable::CameraLabel& label);
 

@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "app/commands.h"
@@ -157,6 +159,25 @@ TEST_F(RenamedFlagsRender, ModeAndTheOldPresetFlagRenderTheSameBytes) {
     EXPECT_EQ(Count(bad.err, warning), std::string(flag) == "--preset" ? 1u : 0u) << bad.err;
   }
   EXPECT_FALSE(fs::exists(dir_ / "bad.png"));
+}
+
+// `render FILE.avatar` draws the photo's detail over the network render by default (the avatar
+// file keeps the portrait's analysis), at --size; --detail off renders the network alone.
+using RenderDetail = RenamedFlagsRender;
+TEST_F(RenderDetail, SavedAvatarsRenderWithThePhotosDetail) {
+  const ProcessResult detail = Render({"--size", "128", "--alpha"}, "detail.png");
+  ASSERT_EQ(detail.exit_code, 0) << detail.out << detail.err;
+  EXPECT_NE(detail.out.find("the photo's detail on the head"), std::string::npos) << detail.out;
+  EXPECT_EQ(detail.err.find("warning: This avatar"), std::string::npos) << detail.err;
+  const cv::Mat image = cv::imread((dir_ / "detail.png").string(), cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(image.size(), cv::Size(128, 128));
+  EXPECT_EQ(image.channels(), 4);
+  const ProcessResult plain = Render({"--detail", "off"}, "plain.png");
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  EXPECT_EQ(plain.out.find("photo's detail"), std::string::npos) << plain.out;
+  const ProcessResult bad = Render({"--detail", "sharp"}, "bad.png");
+  EXPECT_EQ(bad.exit_code, 2) << bad.out << bad.err;
+  EXPECT_NE(bad.err.find("sharp"), std::string::npos) << bad.err;
 }
 
 TEST_F(RenamedFlagsRender, AnimateConfigAndTheOldPresetFlagExportTheSameFrames) {

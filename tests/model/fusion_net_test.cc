@@ -5,10 +5,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <limits>
 
 #include <torch/torch.h>
 
+#include "common/temp_dir.h"
 #include "core/model/fusion_net.h"
 #include "core/util/error.h"
 
@@ -127,6 +131,61 @@ TEST(FusionNet, LearnsToRepairWhatTheWarpDidNotReach) {
   std::cout << "fusion learning: L1 " << first << " -> " << last << " (mean of the last 10 steps), ratio "
             << last / first << "\n";
   EXPECT_LT(last, 0.5 * first);
+}
+
+// Weights files: float32 round trips exactly, float16 within its precision; a file of another
+// kind or with a damaged shape is refused.
+TEST(FusionNet, WeightsFilesRoundTrip) {
+  testing::TempDir dir;
+  torch::manual_seed(11);
+  FusionNetOptions o;
+  o.widths = {4, 8, 12};
+  FusionNet net(o);
+  FusionNetInfo info;
+  info.step = 1234;
+  info.data_provenance = "a test";
+  SaveFusionNet(dir / "f32.ckpt", net, info, false);
+  SaveFusionNet(dir / "f16.ckpt", net, info, true);
+  FusionNetInfo read;
+  const FusionNet a = LoadFusionNet(dir / "f32.ckpt", &read);
+  EXPECT_EQ(read.step, 1234);
+  EXPECT_EQ(read.data_provenance, "a test");
+  EXPECT_EQ(read.options.widths, o.widths);
+  EXPECT_EQ(read.fingerprint.size(), 16u);
+  const FusionNet b = LoadFusionNet(dir / "f16.ckpt");
+  const auto p = net->parameters(), pa = a->parameters(), pb = b->parameters();
+  ASSERT_EQ(p.size(), pa.size());
+  for (size_t k = 0; k < p.size(); ++k) {
+    EXPECT_TRUE(torch::equal(p[k], pa[k])) << k;
+    EXPECT_TRUE(torch::allclose(p[k], pb[k], 1e-3, 1e-4)) << k;
+  }
+  EXPECT_LT(std::filesystem::file_size(dir / "f16.ckpt"), std::filesystem::file_size(dir / "f32.ckpt"));
+  // Non-finite weights are not written.
+  {
+    torch::NoGradGuard no_grad;
+    net->parameters()[0].view({-1})[0] = std::numeric_limits<float>::quiet_NaN();
+  }
+  EXPECT_THROW(SaveFusionNet(dir / "nan.ckpt", net, info, false), InvalidInput);
+  EXPECT_FALSE(std::filesystem::exists(dir / "nan.ckpt"));
+  EXPECT_THROW(LoadFusionNet(dir / "missing.ckpt"), Io);
+  {
+    std::ofstream f(dir / "junk.ckpt");
+    f << "junk";
+  }
+  EXPECT_THROW(LoadFusionNet(dir / "junk.ckpt"), ModelLoad);
+}
+
+// Stored bytes -> the net's input: images to [-1,1], masks to [0,1].
+TEST(FusionNet, InputFromBytesMapsImagesAndMasks) {
+  torch::Tensor bytes = torch::zeros({1, kFusionInputChannels, 2, 2}, torch::kUInt8);
+  bytes.slice(1, 0, 3).fill_(255);
+  bytes.slice(1, 6, 7).fill_(255);
+  const torch::Tensor x = FusionInputFromBytes(bytes);
+  EXPECT_FLOAT_EQ(x[0][0][0][0].item<float>(), 1.0f);
+  EXPECT_FLOAT_EQ(x[0][3][0][0].item<float>(), -1.0f);
+  EXPECT_FLOAT_EQ(x[0][6][0][0].item<float>(), 1.0f);
+  EXPECT_FLOAT_EQ(x[0][7][0][0].item<float>(), 0.0f);
+  EXPECT_THROW(FusionInputFromBytes(torch::zeros({1, 3, 2, 2})), InvalidInput);
 }
 
 }  // namespace fusion_test

@@ -17,12 +17,19 @@
 #include "core/compose/face_detail.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
+#include "core/model/fusion_net.h"
 #include "core/pipeline/detail_source.h"
+#include "core/pipeline/fusion_input.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/pipeline/morphable_preview.h"
+#include "core/model/checkpoint.h"
+#include "core/pipeline/avatar_state.h"
+#include "core/pipeline/session.h"
 #include "core/pipeline/source_analysis.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "common/sample_analysis.h"
+#include "common/temp_dir.h"
 
 namespace avatar {
 namespace {
@@ -244,6 +251,143 @@ TEST_F(Detail, ClosedEyeSourceAndAMatteTouchingTheBorderStayFiniteAndInRange) {
       ASSERT_EQ(frame.bgr.size(), cv::Size(128, 128));
       EXPECT_TRUE(cv::checkRange(frame.bgr) && cv::checkRange(frame.alpha));
     }
+  }
+}
+
+// The fusion net's input is the frame's own layers: RenderLayers().frame is Render()'s frame,
+// and FusionInputBytes packs the composite, the network render and the masks in the net's order.
+TEST_F(Detail, LayersAreTheFrameAndPackIntoTheFusionInput) {
+  const DetailFrameSource source(Base(), *analysis_);
+  FrameRequest request;
+  request.view = source.SourcePose();
+  request.view.yaw += 20.0;
+  request.expression.controls["jawOpen"] = 0.6f;
+  request.width = request.height = 96;
+  RunContext ctx;
+  const DetailLayers layers = source.RenderLayers(request, ctx);
+  const RenderedFrame frame = source.Render(request, ctx);
+  EXPECT_EQ(cv::norm(layers.frame.bgr, frame.bgr, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(layers.frame.alpha, frame.alpha, cv::NORM_INF), 0.0);
+  const torch::Tensor bytes = FusionInputBytes(layers);
+  ASSERT_EQ(bytes.sizes(), (std::vector<int64_t>{kFusionInputChannels, 96, 96}));
+  EXPECT_TRUE(torch::equal(bytes.slice(0, 0, 3), RgbBytes(frame.bgr)));
+  EXPECT_TRUE(torch::equal(bytes.slice(0, 3, 6), RgbBytes(layers.network)));
+  EXPECT_TRUE(torch::equal(bytes.slice(0, 10, 11), MaskBytes(frame.alpha)));
+  const torch::Tensor face = bytes[8] > 0, eye_mouth = bytes[9] > 0, face_weight = bytes[6] > 0;
+  EXPECT_GT(face.sum().item<int64_t>(), 500);
+  EXPECT_GT(eye_mouth.sum().item<int64_t>(), 20);                             // the mouth and eyes are in view
+  EXPECT_EQ((eye_mouth & ~face).sum().item<int64_t>(), 0);                    // only on the face
+  EXPECT_EQ((face_weight & ~face).sum().item<int64_t>(), 0);                  // the face warp only on the face
+  const torch::Tensor x = FusionInputFromBytes(bytes.unsqueeze(0));
+  EXPECT_GE(x.slice(1, 0, 6).min().item<float>(), -1.0f);
+  EXPECT_LE(x.slice(1, 0, 6).max().item<float>(), 1.0f);
+  EXPECT_GE(x.slice(1, 6).min().item<float>(), 0.0f);
+  EXPECT_LE(x.slice(1, 6).max().item<float>(), 1.0f);
+  // Round trip of the image bytes.
+  EXPECT_EQ(cv::norm(BgrFromRgb(bytes.slice(0, 0, 3)), frame.bgr, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(BgrFromRgb(x[0].slice(0, 0, 3)), frame.bgr, cv::NORM_INF), 0.0);
+}
+
+// A stored analysis (the data factory's crop, matte, mask and fit) rebuilds the analysis the
+// pipeline made: the same texture and the same preview frames.
+TEST_F(Detail, AnalysisFromFitRebuildsTheAnalysis) {
+  face::AlignedPortrait stored;
+  stored.image_unmatted = analysis_->portrait.image_unmatted.clone();
+  stored.matte = analysis_->portrait.matte.clone();
+  stored.eye_mouth_mask = analysis_->portrait.eye_mouth_mask.clone();
+  const SourceAnalysis rebuilt = AnalysisFromFit(stored, analysis_->morphable_fit, "");
+  ASSERT_EQ(rebuilt.model, analysis_->model);
+  EXPECT_EQ(rebuilt.fit.camera, analysis_->fit.camera);
+  ASSERT_EQ(rebuilt.portrait.image.size(), analysis_->portrait.image.size());
+  cv::Mat diff;
+  cv::absdiff(rebuilt.portrait.image, analysis_->portrait.image, diff);
+  EXPECT_LT(cv::mean(diff)[0], 2.0);  // the matted crop, made the analyser's way
+  const MorphablePreviewSource a(*analysis_->model, analysis_->morphable_fit, analysis_->texture);
+  const MorphablePreviewSource b(*rebuilt.model, rebuilt.morphable_fit, rebuilt.texture);
+  FrameRequest request;
+  request.view = a.SourcePose();
+  request.view.yaw += 15.0;
+  request.width = request.height = 64;
+  RunContext ctx;
+  EXPECT_EQ(cv::norm(a.Render(request, ctx).bgr, b.Render(request, ctx).bgr, cv::NORM_INF), 0.0);
+  // Mismatched sizes are refused with the reason.
+  morphable::FitResult other = analysis_->morphable_fit;
+  other.image_size = cv::Size(100, 100);
+  EXPECT_THROW(AnalysisFromFit(stored, other, ""), InvalidInput);
+  face::AlignedPortrait no_matte = stored;
+  no_matte.matte = cv::Mat();
+  EXPECT_THROW(AnalysisFromFit(no_matte, analysis_->morphable_fit, ""), InvalidInput);
+}
+
+TEST_F(Detail, SavedAvatarsKeepTheAnalysisAndRenderWithTheDetailPath) {
+  testing::TempDir dir;
+  SessionOptions so;
+  so.random_weights = true;
+  so.config = "tiny";
+  const auto session = std::make_shared<const Session>(so);
+  RunContext ctx;
+  const Avatar avatar = session->ReconstructFromAnalysis(*analysis_, ctx);
+  ASSERT_TRUE(avatar.HasPortraitAnalysis());
+  session->SaveAvatar(avatar, dir / "a.avatar");
+  const Avatar loaded = session->LoadAvatar(dir / "a.avatar");
+  ASSERT_TRUE(loaded.HasPortraitAnalysis());
+  const AvatarPortrait& a = *avatar.state()->portrait;
+  const AvatarPortrait& b = *loaded.state()->portrait;
+  EXPECT_EQ(cv::norm(a.portrait.image_unmatted, b.portrait.image_unmatted, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(a.portrait.matte, b.portrait.matte, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(a.portrait.eye_mouth_mask, b.portrait.eye_mouth_mask, cv::NORM_INF), 0.0);
+  ASSERT_EQ(a.portrait.landmarks.points.size(), b.portrait.landmarks.points.size());
+  EXPECT_EQ(a.portrait.landmarks.points[10], b.portrait.landmarks.points[10]);
+  EXPECT_EQ(a.fit.alpha, b.fit.alpha);
+  EXPECT_EQ(a.fit.beta, b.fit.beta);
+  EXPECT_EQ(a.fit.camera, b.fit.camera);
+  EXPECT_EQ(a.fit.image_size, b.fit.image_size);
+  EXPECT_LT(cv::norm(a.fit.rotation, b.fit.rotation, cv::NORM_INF), 1e-5);
+  EXPECT_LT(cv::norm(a.fit.translation, b.fit.translation, cv::NORM_INF), 1e-4);
+
+  // The saved avatar renders through the detail path, the same frame as the avatar in memory.
+  BackendOptions options;
+  options.random_weights = true;
+  const auto in_memory = SavedAvatarSource(session, avatar, options);
+  const auto from_file = SavedAvatarSource(session, loaded, options);
+  ASSERT_NE(from_file->Wrapped(), nullptr);
+  EXPECT_TRUE(from_file->Warnings().empty());
+  EXPECT_NE(from_file->Label().find("photo"), std::string::npos) << from_file->Label();
+  FrameRequest request;
+  request.view = from_file->SourcePose();
+  request.view.yaw += 10.0;
+  request.width = request.height = 96;
+  const RenderedFrame f1 = in_memory->Render(request, ctx), f2 = from_file->Render(request, ctx);
+  EXPECT_LT(cv::norm(f1.bgr, f2.bgr, cv::NORM_INF), 2.0);
+  EXPECT_TRUE(cv::checkRange(f2.bgr));
+  // --detail off: the network alone, no warning.
+  options.detail = "off";
+  const auto plain = SavedAvatarSource(session, loaded, options);
+  EXPECT_EQ(plain->Wrapped(), nullptr);
+  EXPECT_TRUE(plain->Warnings().empty());
+
+  // An avatar without the analysis (as files written before it was stored): the network alone,
+  // and the warning says how to get the detail path.
+  const Avatar bare = session->ReconstructFromAnalysis(analysis_->portrait, analysis_->fit, ctx);
+  EXPECT_FALSE(bare.HasPortraitAnalysis());
+  session->SaveAvatar(bare, dir / "old.avatar");
+  const Avatar old = session->LoadAvatar(dir / "old.avatar");
+  EXPECT_FALSE(old.HasPortraitAnalysis());
+  options.detail = "head";
+  const auto fallback = SavedAvatarSource(session, old, options);
+  EXPECT_EQ(fallback->Wrapped(), nullptr);
+  ASSERT_EQ(fallback->Warnings().size(), 1u);
+  EXPECT_NE(fallback->Warnings()[0].find("reconstruct the portrait again"), std::string::npos);
+
+  // A damaged stored analysis is refused naming the file.
+  TensorArchive archive = ReadTensorArchive(dir / "a.avatar", "goha-avatar");
+  archive.meta["portrait_fit"]["camera"] = std::vector<float>(3, 0.0f);
+  WriteTensorArchive(dir / "bad.avatar", archive);
+  try {
+    session->LoadAvatar(dir / "bad.avatar");
+    ADD_FAILURE() << "a damaged analysis was read";
+  } catch (const ModelLoad& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.avatar"), std::string::npos) << e.what();
   }
 }
 

@@ -357,7 +357,7 @@ KnownHead MakeKnownHead() {
   const morphable::CameraLabel camera = morphable::FrontalLabel();
   KnownHead k;
   k.analysis.model = &model;
-  k.analysis.morphable_fit = FitFromRecord(model.ZeroAlpha(), model.ZeroBeta(), 1.0f, camera, cv::Size(size, size));
+  k.analysis.morphable_fit = morphable::FitFromLabel(model.ZeroAlpha(), model.ZeroBeta(), 1.0f, camera, cv::Size(size, size));
   k.analysis.texture.uv_image = cv::Mat(128, 128, CV_32FC3);
   for (int y = 0; y < 128; ++y) {
     for (int x = 0; x < 128; ++x)

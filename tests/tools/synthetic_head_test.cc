@@ -48,7 +48,7 @@ struct Portrait {
 Portrait MakePortrait(const CameraLabel& camera, int size) {
   const auto& m = Model();
   Portrait p;
-  p.fit = FitFromRecord(m.ZeroAlpha(), m.ZeroBeta(), 1.0f, camera, cv::Size(size, size));
+  p.fit = morphable::FitFromLabel(m.ZeroAlpha(), m.ZeroBeta(), 1.0f, camera, cv::Size(size, size));
   morphable::Texture tex;
   tex.uv_image = cv::Mat(128, 128, CV_32FC3);
   for (int y = 0; y < 128; ++y) {
@@ -260,7 +260,7 @@ TEST(SyntheticHead, BadInputsAreRefused) {
   const CameraLabel away_label =
       morphable::LabelFromPose(cv::Matx33d(-1, 0, 0, 0, -1, 0, 0, 0, 1), cv::Vec3d(0.0, 0.0, 2.7));
   const morphable::FitResult away =
-      FitFromRecord(Model().ZeroAlpha(), Model().ZeroBeta(), 1.0f, away_label, cv::Size(64, 64));
+      morphable::FitFromLabel(Model().ZeroAlpha(), Model().ZeroBeta(), 1.0f, away_label, cv::Size(64, 64));
   EXPECT_THROW(BuildSyntheticHead(Model(), away, p.bgr, p.matte, cv::Mat()), InvalidInput);
 }
 

@@ -1,0 +1,30 @@
+#pragma once
+// Reading a built dataset's per-frame records (records.json, dataset_build.h) back into the
+// pipeline's types: the morphable fit a record was made with and the stored aligned portrait, so
+// that tools (evaluation, the fusion set) start from the data factory's one analysis of a frame
+// instead of analysing it again.
+
+#include <filesystem>
+#include <string>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "core/face/face_types.h"
+#include "core/morphable/morphable.h"
+
+namespace avatar {
+
+// A record's camera label ("label": 25 floats). Throws InvalidInput naming `what`.
+morphable::CameraLabel RecordLabel(const nlohmann::json& values, const std::string& what);
+
+// The fit of a record (alpha, beta, scale, label) for an image of `image_size` (the stored crop's).
+// Throws InvalidInput naming the record for missing or malformed fields.
+morphable::FitResult RecordFit(const nlohmann::json& record, cv::Size image_size);
+
+// The stored aligned portrait of a record in dataset folder `dir`: the unmatted crop, the matte
+// and the eye/mouth mask (files listed in the record). The matted crop is left empty
+// (AnalysisFromFit makes it). Throws Io / InvalidInput naming the file.
+face::AlignedPortrait RecordPortrait(const std::filesystem::path& dir, const nlohmann::json& record);
+
+}  // namespace avatar
