@@ -1,5 +1,6 @@
 #include "core/tools/fusion_eval.h"
 
+#include <chrono>
 #include <cmath>
 #include <iomanip>
 #include <map>
@@ -14,6 +15,7 @@
 #include "core/train/metrics.h"
 #include "core/train/perceptual.h"
 #include "core/util/error.h"
+#include "core/util/progress_line.h"
 
 namespace avatar {
 namespace {
@@ -67,6 +69,8 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
   std::vector<cv::Mat> sheet_rows;
   const int64_t sheet_every = std::max<int64_t>(1, s.size() / options.sheet_rows);
   torch::NoGradGuard no_grad;
+  ProgressLine progress = ProgressLine::ForStderr();
+  const auto start = std::chrono::steady_clock::now();
   for (int64_t i = 0; i < s.size(); i += 4) {
     ctx.ThrowIfCancelled();
     const int64_t m = std::min<int64_t>(4, s.size() - i);
@@ -109,7 +113,13 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
       }
     }
     ctx.Report("fusion eval", static_cast<double>(i + m) / static_cast<double>(s.size()));
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::ostringstream line;
+    line << "fusion eval: " << (i + m) << "/" << s.size() << " frames, " << static_cast<int64_t>(seconds) << " s, ETA "
+         << static_cast<int64_t>(seconds / static_cast<double>(i + m) * static_cast<double>(s.size() - i - m)) << " s";
+    progress.Update(line.str());
   }
+  progress.Finish();
   for (const std::string kind : {"clip", "synthetic", "photo"}) {
     for (const char* region : regions) {
       for (const std::string bucket : {"0-10", "10-20", "20-35", "35+", "all"}) {
