@@ -21,6 +21,9 @@ set(AVATAR_FUZZ_SOURCES
   core/face/face_geometry.cc
   core/face/warp.cc
   core/pipeline/avatar_file.cc
+  core/morphable/fit_from_label.cc
+  core/morphable/camera_label.cc
+  core/render/camera.cc
   core/pipeline/source_fit.cc
   core/pipeline/driving.cc
   core/pipeline/expression.cc

@@ -485,18 +485,4 @@ std::vector<FitResult> FitSequence(const MorphableModel& model, const std::vecto
   return out;
 }
 
-FitResult FitFromLabel(const Alpha& alpha, const Beta& beta, float scale, const CameraLabel& label,
-                       cv::Size image_size) {
-  const PinholeCamera cam = PinholeCamera::FromLabel(label);
-  FitResult fit;
-  fit.alpha = alpha;
-  fit.beta = beta;
-  fit.scale = scale;
-  fit.rotation = cam.world_to_cam;
-  fit.translation = -(cam.world_to_cam * cam.centre);
-  fit.camera = label;
-  fit.image_size = image_size;
-  return fit;
-}
-
 }  // namespace avatar::morphable
