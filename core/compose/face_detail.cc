@@ -6,6 +6,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "core/face/face_geometry.h"
 #include "core/morphable/rasterizer.h"
 #include "core/render/view_pose.h"
 #include "core/util/error.h"
@@ -34,8 +35,10 @@ void FaceDetailOptions::Validate() const {
       << "the detail matte threshold must be in [0, 1], got " << min_matte;
   AVATAR_CHECK_OPTION(std::isfinite(feather) && feather >= 0.0 && feather <= 0.25)
       << "the detail feather must be in [0, 0.25], got " << feather;
-  AVATAR_CHECK_OPTION(std::isfinite(same_expression) && same_expression >= 0.0f)
-      << "the same-expression threshold must be >= 0, got " << same_expression;
+  AVATAR_CHECK_OPTION(std::isfinite(eye_mouth_motion) && eye_mouth_motion >= 0.0)
+      << "the eye/mouth motion threshold must be a finite number >= 0, got " << eye_mouth_motion;
+  AVATAR_CHECK_OPTION(changed_eye_mouth == "network" || changed_eye_mouth == "mesh")
+      << "a changed eye or mouth comes from 'network' or 'mesh', got '" << changed_eye_mouth << "'";
 }
 
 FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitResult fit, cv::Mat photo, cv::Mat matte,
@@ -72,12 +75,8 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   AVATAR_CHECK_INPUT(static_cast<int>(beta.size()) == model_.num_expression())
       << "detail: " << beta.size() << " expression coefficients for a model with " << model_.num_expression();
   AVATAR_CHECK_INPUT(size.width >= 1 && size.height >= 1) << "detail: empty output size";
-  float change = 0.0f;
-  for (size_t k = 0; k < beta.size(); ++k) {
+  for (size_t k = 0; k < beta.size(); ++k)
     AVATAR_CHECK_INPUT(std::isfinite(beta[k])) << "detail: expression coefficient " << k << " is not finite";
-    change = std::max(change, std::abs(beta[k] - fit_.beta[k]));
-  }
-  const bool same_expression = change <= options_.same_expression;
 
   const morphable::PinholeCamera target_cam = morphable::PinholeCamera::FromLabel(camera);
   const morphable::PinholeCamera source_cam = morphable::PinholeCamera::FromLabel(fit_.camera);
@@ -86,6 +85,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   std::vector<morphable::ScreenVertex> target_screen;
   Project(target_cam, target_world, size, &target_points, &target_screen);
   const morphable::RasterBuffers raster = morphable::Rasterize(target_screen, model_.topology().triangles, size);
+  const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, raster, size);
 
   const auto& triangles = model_.topology().triangles;
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
@@ -115,7 +115,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
       eye_mouth.at<uchar>(y, x) = eye_mouth_.at<uchar>(sy, sx) != 0 ? 255 : 0;
       if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
       if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
-      if (!same_expression && !options_.eyes_mouth_from_photo && eye_mouth_.at<uchar>(sy, sx) != 0) continue;
+      if (changed.at<uchar>(y, x) != 0) continue;  // the photo shows another expression here
       map_x.at<float>(y, x) = static_cast<float>(px.x);
       map_y.at<float>(y, x) = static_cast<float>(px.y);
       out.valid.at<uchar>(y, x) = 255;
@@ -123,7 +123,46 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   }
   FaceWarp warp = WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
   warp.eye_mouth = std::move(eye_mouth);
+  warp.changed = changed;
   return warp;
+}
+
+double FaceDetail::EyeMouthMotion(const std::vector<cv::Point3f>& target_world, const std::vector<int>& region) const {
+  const cv::Point3f& a = source_world_[face::mesh_index::kRightEyeOuter];
+  const cv::Point3f& b = source_world_[face::mesh_index::kLeftEyeOuter];
+  const double eyes = std::max(1e-6, cv::norm(a - b));
+  double motion = 0.0;
+  for (const int v : region) motion = std::max(motion, cv::norm(target_world[v] - source_world_[v]));
+  return motion / eyes;
+}
+
+cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
+                                    const std::vector<morphable::ScreenVertex>& target_screen,
+                                    const morphable::RasterBuffers& raster, cv::Size size) const {
+  cv::Mat changed = cv::Mat::zeros(size, CV_8UC1);
+  std::vector<std::vector<cv::Point>> polys;
+  for (const auto* region : {&face::mesh_index::RightEye(), &face::mesh_index::LeftEye(), &face::mesh_index::LipsOuter()}) {
+    if (EyeMouthMotion(target_world, *region) <= options_.eye_mouth_motion) continue;
+    std::vector<cv::Point> poly;
+    bool in_front = true;
+    for (const int v : *region) {
+      const morphable::ScreenVertex& p = target_screen[v];
+      in_front = in_front && p.depth > 1e-6 && std::isfinite(p.x) && std::isfinite(p.y) && std::abs(p.x) < 1e6 &&
+                 std::abs(p.y) < 1e6;
+      poly.emplace_back(cvRound(p.x * 16), cvRound(p.y * 16));
+    }
+    if (in_front) polys.push_back(std::move(poly));
+  }
+  if (polys.empty()) return changed;
+  cv::fillPoly(changed, polys, cv::Scalar(255), cv::LINE_8, 4);  // 4 fractional bits
+  if (options_.changed_eye_mouth == "mesh") {
+    changed.setTo(0, raster.triangle >= 0);  // lids and lips follow the mesh; openings do not
+  } else {
+    // A margin around the contour: the photo's lids and lips there moved with the expression too.
+    const int margin = std::max(1, static_cast<int>(std::lround(0.015 * size.height)));
+    cv::dilate(changed, changed, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * margin + 1, 2 * margin + 1)));
+  }
+  return changed;
 }
 
 FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,
@@ -159,6 +198,24 @@ cv::Mat FeatheredWeight(const cv::Mat& valid, double feather) {
   }
   cv::min(cv::max(weight, 0.0), 1.0, weight);
   return weight;
+}
+
+void ExcludeRegion(FaceWarp* warp, const cv::Mat& region, double feather) {
+  if (region.empty() || cv::countNonZero(region) == 0) return;
+  AVATAR_CHECK_INPUT(region.type() == CV_8UC1 && region.size() == warp->valid.size())
+      << "detail: the excluded region must be CV_8UC1 of the warp's size";
+  warp->valid.setTo(0, region);
+  warp->bgr.setTo(cv::Scalar::all(0), region);
+  // 1 on the region and a feather width around it, fading to 0 another feather width out.
+  const int radius = std::max(1, static_cast<int>(std::lround(feather * region.rows)));
+  cv::Mat grown, soft;
+  cv::dilate(region, grown, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)));
+  grown.convertTo(soft, CV_32FC1, 1.0 / 255.0);
+  cv::GaussianBlur(soft, soft, cv::Size(0, 0), radius / 2.0 + 0.5);
+  soft.setTo(1.0f, region);
+  cv::Mat keep = 1.0 - soft;
+  cv::max(keep, 0.0, keep);
+  warp->weight = warp->weight.mul(keep);
 }
 
 cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha) {

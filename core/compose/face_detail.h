@@ -3,14 +3,18 @@
 // mesh (explicit correspondence): a target pixel covered by the mesh at the target camera and
 // expression looks up the same barycentric point of the mesh at the source camera and expression
 // in the aligned photo, when the photo saw that point (source depth test) and it belongs to the
-// person (matte). Under a new expression the photo's eyes and mouth follow the mesh, or, with
-// eyes_mouth_from_photo off, are left to the base frame (the network's expression branch).
+// person (matte). Where an eye or the mouth changes with the expression (its contour on the mesh
+// moves), the photo cannot show it (a closed eye has no pupil to open): that region of the target
+// is marked `changed` and left to the base frame (the network's expression branch), or, with
+// changed_eye_mouth "mesh", only its openings (lips and lids still follow the mesh).
 
+#include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include "core/morphable/morphable.h"
+#include "core/morphable/rasterizer.h"
 
 namespace avatar::compose {
 
@@ -21,13 +25,16 @@ struct FaceDetailOptions {
   float min_matte = 0.5f;
   // Feather width of the warp's edge, as a fraction of the output height.
   double feather = 0.01;
-  // Largest expression change (max |beta_target - beta_source|) at which the photo's eyes and
-  // mouth are still used.
-  float same_expression = 1e-3f;
-  // Under a new expression the photo's eyes and mouth follow the face mesh (true: the lips part
-  // and the eyes close with the mesh, as in the morphable preview) or are left to the base frame
-  // (false: the network's expression branch draws them).
-  bool eyes_mouth_from_photo = true;
+  // An eye or the mouth has changed when a vertex of its contour moves by more than this between
+  // the source and the target expression, as a fraction of the distance between the eyes' outer
+  // corners. On the bundled morphable model a blink moves the lid by 0.13, jawOpen and smile the
+  // lips by 0.16, a smile the lower lids by 0.04 and eyesWide the lids by 0.016 (printed by
+  // pipeline/Detail.ChangedEyesAndMouthComeFromTheBaseFrame): blinks and mouth motion count.
+  double eye_mouth_motion = 0.05;
+  // What a changed eye or mouth shows: "network" (the whole region comes from the base frame: the
+  // photo's pixels there belong to the other expression) or "mesh" (the photo's lids and lips
+  // follow the mesh; only the openings the mesh does not cover come from the base frame).
+  std::string changed_eye_mouth = "network";
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -42,6 +49,9 @@ struct FaceWarp {
   // [H,W] CV_8UC1 255 where the face mesh's surface point lies in the photo's eye/mouth region
   // (seen or not); empty for warps without a face mesh.
   cv::Mat eye_mouth;
+  // [H,W] CV_8UC1 255 on the target's eyes and mouth where they changed with the expression: no
+  // layer of the photo may draw there (ExcludeRegion); empty for warps without a face mesh.
+  cv::Mat changed;
 };
 
 class FaceDetail {
@@ -60,7 +70,16 @@ class FaceDetail {
 
   const morphable::FitResult& fit() const { return fit_; }
 
+  // The largest motion of a region's vertices (mesh_index contour) from the source expression to
+  // `target_world` (the mesh at the target expression, source pose), as a fraction of the eye
+  // distance.
+  double EyeMouthMotion(const std::vector<cv::Point3f>& target_world, const std::vector<int>& region) const;
+
  private:
+  cv::Mat ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
+                          const std::vector<morphable::ScreenVertex>& target_screen,
+                          const morphable::RasterBuffers& raster, cv::Size size) const;
+
   const morphable::MorphableModel& model_;
   morphable::FitResult fit_;
   cv::Mat photo_;                          // CV_8UC3
@@ -85,5 +104,10 @@ cv::Mat FeatheredWeight(const cv::Mat& valid, double feather);
 // where it is 1. Returns the composite; `alpha` (CV_8UC1, may be empty) gets at least the warp's
 // weight where the face covers.
 cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha = nullptr);
+
+// Removes `region` (CV_8UC1, 255 = excluded; empty = nothing) from a warp: not valid there, and
+// its weight fades to 0 over `feather` x height towards the region, so the frame below shows
+// there with a soft seam.
+void ExcludeRegion(FaceWarp* warp, const cv::Mat& region, double feather);
 
 }  // namespace avatar::compose

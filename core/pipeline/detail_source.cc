@@ -151,14 +151,16 @@ DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunCon
   ctx.ThrowIfCancelled();
   layers.network = frame.bgr.clone();
   const cv::Size size(request.width, request.height);
+  // The face warp first: its changed eyes and mouth are left to the base frame by every layer.
+  const compose::FaceWarp warp = Warp(request);
   if (depth_ != nullptr) {
-    const compose::FaceWarp depth = DepthWarp(request, frame);
+    compose::FaceWarp depth = DepthWarp(request, frame);
+    compose::ExcludeRegion(&depth, warp.changed, options_.face.feather);
     frame.bgr = compose::Composite(frame.bgr, depth, &frame.alpha);
     layers.depth_weight = depth.weight;
   } else {
     layers.depth_weight = cv::Mat::zeros(size, CV_32FC1);
   }
-  const compose::FaceWarp warp = Warp(request);
   if (fill_ != nullptr) {
     // Under the photo's warp, the textured face mesh over the whole face: what the photo did not
     // see of the face shows the fit's texture, not the network's blur.
@@ -168,6 +170,7 @@ DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunCon
     fill.valid = face.alpha >= 128;
     fill.face = fill.valid;
     fill.weight = compose::FeatheredWeight(fill.valid, options_.face.feather);
+    compose::ExcludeRegion(&fill, warp.changed, options_.face.feather);
     frame.bgr = compose::Composite(frame.bgr, fill, &frame.alpha);
   }
   frame.bgr = compose::Composite(frame.bgr, warp, &frame.alpha);

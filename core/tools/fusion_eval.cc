@@ -58,9 +58,6 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
   PerceptualOptions po;
   po.data_dir = options.data_dir;
   const PerceptualLoss perceptual(po);
-  auto distance = [&](const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& m) {
-    return perceptual.Distance(a, b, m);
-  };
   std::vector<std::string> paths = {"network (bicubic)", "morphable preview", "geometric composite"};
   if (net) paths.push_back("learned fusion");
   const char* regions[] = {"frame", "valid warp", "outside warp"};
@@ -81,8 +78,14 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
     if (net) outs.push_back(net->forward(x).clamp(-1.0, 1.0));
     const torch::Tensor valid = (torch::max(x.slice(1, 6, 7), x.slice(1, 7, 8)) > 0.5).to(torch::kFloat32);
     const torch::Tensor masks[] = {torch::Tensor(), valid, 1.0 - valid};
-    for (int r = 0; r < 3; ++r) {
-      for (size_t p = 0; p < outs.size(); ++p) {
+    // Features once per image; each region is a mask over the same feature distance maps.
+    const std::vector<torch::Tensor> target_features = perceptual.Features(target);
+    for (size_t p = 0; p < outs.size(); ++p) {
+      const std::vector<torch::Tensor> features = perceptual.Features(outs[p]);
+      auto distance = [&](const torch::Tensor&, const torch::Tensor&, const torch::Tensor& mask) {
+        return perceptual.FeatureDistance(features, target_features, mask);
+      };
+      for (int r = 0; r < 3; ++r) {
         const train::ImageMetrics im = train::ComputeImageMetrics(outs[p], target, masks[r], distance);
         for (int64_t b = 0; b < m; ++b) {
           const torch::Tensor meta = s.meta[i + b];

@@ -59,10 +59,21 @@ torch::Tensor PerceptualLoss::Distance(const torch::Tensor& a, const torch::Tens
   }
   // Two separate passes with identical shapes give bitwise-equal features for equal images,
   // so the distance of an image to itself is exactly 0.
-  const auto fa = net_->Features(a, options_.taps);
-  const auto fb = net_->Features(b, options_.taps);
-  torch::Tensor total = torch::zeros({a.size(0)}, a.options());
+  return FeatureDistance(Features(a), Features(b), mask);
+}
+
+std::vector<torch::Tensor> PerceptualLoss::Features(const torch::Tensor& x) const {
+  AVATAR_CHECK_INPUT(x.dim() == 4 && x.size(1) == 3) << "perceptual features expect [B,3,H,W], got " << x.sizes();
+  return net_->Features(x, options_.taps);
+}
+
+torch::Tensor PerceptualLoss::FeatureDistance(const std::vector<torch::Tensor>& fa, const std::vector<torch::Tensor>& fb,
+                                              const torch::Tensor& mask) const {
+  AVATAR_CHECK_INPUT(!fa.empty() && fa.size() == fb.size()) << "perceptual loss: feature sets differ in length";
+  torch::Tensor total = torch::zeros({fa[0].size(0)}, fa[0].options());
   for (size_t s = 0; s < fa.size(); ++s) {
+    AVATAR_CHECK_INPUT(fa[s].sizes() == fb[s].sizes())
+        << "perceptual loss: feature shapes differ: " << fa[s].sizes() << " vs " << fb[s].sizes();
     auto unit = [](const torch::Tensor& f) { return f * torch::rsqrt(f.pow(2).sum(1, /*keepdim=*/true) + 1e-10); };
     const torch::Tensor d = (unit(fa[s]) - unit(fb[s])).pow(2).sum(1, /*keepdim=*/true);  // [B,1,h,w]
     torch::Tensor stage;

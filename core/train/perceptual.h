@@ -50,6 +50,11 @@ class PerceptualLoss {
   // 0 where a == b. The network's weights are frozen; gradients flow to a and b.
   // Throws InvalidInput on shape mismatches.
   torch::Tensor Distance(const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& mask = {}) const;
+  // The same in two steps, for comparing many images or masks with features computed once:
+  // Features(a) at the taps, then the distance of two feature sets under a mask (as above).
+  std::vector<torch::Tensor> Features(const torch::Tensor& x) const;
+  torch::Tensor FeatureDistance(const std::vector<torch::Tensor>& fa, const std::vector<torch::Tensor>& fb,
+                                const torch::Tensor& mask = {}) const;
 
   // Moves the network to a device / dtype (double for gradient checks).
   void To(const torch::Device& device, torch::Dtype dtype = torch::kFloat32);

@@ -3,8 +3,8 @@
 //    photo at the points it saw): PSNR against the aligned crop inside the valid mask;
 //  - the valid region shrinks on the far side when the head turns, and the composite is the
 //    base frame outside the face;
-//  - hard cases: yaw 60, an expression change (eyes and mouth through the mesh, or left to the
-//    base), tiny and large
+//  - hard cases: yaw 60, an expression change (the changed eyes and mouth left to the base frame,
+//    a closed-eye source driven to eyes wide), tiny and large
 //    outputs: outputs finite, in range, masks consistent; bad options and inputs are refused.
 #include <gtest/gtest.h>
 
@@ -15,6 +15,7 @@
 
 #include "core/compose/depth_detail.h"
 #include "core/compose/face_detail.h"
+#include "core/face/face_geometry.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
 #include "core/model/fusion_net.h"
@@ -117,22 +118,107 @@ TEST_F(Detail, HardCasesStayFiniteAndInRange) {
   request.view.yaw += 60.0;
   const compose::FaceWarp far = source.Warp(request);
   ExpectSane(far, cv::Size(128, 128));
-  // An expression change: the photo's eyes and mouth follow the mesh by default; with
-  // eyes_mouth_from_photo off they are left to the base frame.
+  // An expression change: the eyes and the mouth that change are left to the base frame.
   request.view = source.SourcePose();
-  const double same = ValidFraction(source.Warp(request));
+  const compose::FaceWarp same = source.Warp(request);
+  EXPECT_EQ(cv::countNonZero(same.changed), 0) << "the source expression changes nothing";
+  EXPECT_GT(ValidFraction(same), 0.8);
   request.expression.controls["jawOpen"] = 0.9f;
   request.expression.controls["eyesWide"] = 1.0f;
   const compose::FaceWarp changed = source.Warp(request);
   ExpectSane(changed, cv::Size(128, 128));
-  DetailOptions network_eyes;
-  network_eyes.face.eyes_mouth_from_photo = false;
-  const DetailFrameSource left_out(Base(), *analysis_, network_eyes);
-  const compose::FaceWarp without = left_out.Warp(request);
-  ExpectSane(without, cv::Size(128, 128));
-  EXPECT_LT(ValidFraction(without), ValidFraction(changed));
-  EXPECT_LT(ValidFraction(without), same);
-  EXPECT_GT(ValidFraction(changed), 0.8);
+  EXPECT_GT(cv::countNonZero(changed.changed), 0);
+  EXPECT_EQ(cv::countNonZero(changed.valid & changed.changed), 0) << "the photo drew a changed eye or mouth";
+  EXPECT_LT(ValidFraction(changed), ValidFraction(same));
+  DetailOptions mesh_eyes;
+  mesh_eyes.face.changed_eye_mouth = "mesh";
+  const DetailFrameSource openings_only(Base(), *analysis_, mesh_eyes);
+  const compose::FaceWarp openings = openings_only.Warp(request);
+  ExpectSane(openings, cv::Size(128, 128));
+  EXPECT_EQ(cv::countNonZero(openings.changed & openings.face), 0) << "mode mesh leaves only the openings";
+  EXPECT_GT(ValidFraction(openings), ValidFraction(changed));
+}
+
+// Which region changed follows the expression: jawOpen changes the mouth only, a blink one eye
+// only (the changed pixels lie below / above the face's middle), and the frame shows the base
+// frame exactly there, whatever the photo's layers (face warp, depth warp, textured fill) hold.
+TEST_F(Detail, ChangedEyesAndMouthComeFromTheBaseFrame) {
+  const DetailFrameSource source(Base(), *analysis_);
+  FrameRequest request;
+  request.view = source.SourcePose();
+  request.width = request.height = 192;
+  const compose::FaceWarp neutral = source.Warp(request);
+  const cv::Rect face = cv::boundingRect(neutral.face);
+  ASSERT_GT(face.area(), 0);
+  const int middle = face.y + face.height / 2;
+  // The contour motions each control causes (fractions of the eye distance), for the record.
+  const compose::FaceDetail detail(*analysis_->model, analysis_->morphable_fit, analysis_->portrait.image_unmatted,
+                                   analysis_->portrait.matte, analysis_->portrait.eye_mouth_mask);
+  for (const std::string control : {"jawOpen", "eyesWide", "blinkLeft", "smile", "browRaise"}) {
+    Expression e;
+    e.controls = {{control, 1.0f}};
+    const morphable::Beta beta = ExpressionBeta(*analysis_->model, analysis_->morphable_fit.beta, e);
+    const std::vector<cv::Point3f> world = morphable::WorldVertices(*analysis_->model, analysis_->morphable_fit, &beta);
+    std::cout << "[detail] " << control << " 1.0 moves the right eye by "
+              << detail.EyeMouthMotion(world, face::mesh_index::RightEye()) << ", the left eye by "
+              << detail.EyeMouthMotion(world, face::mesh_index::LeftEye()) << ", the mouth by "
+              << detail.EyeMouthMotion(world, face::mesh_index::LipsOuter()) << " eye distances\n";
+  }
+  RunContext ctx;
+  for (const std::string control : {"jawOpen", "blinkLeft", "blinkRight"}) {
+    SCOPED_TRACE(control);
+    request.expression.controls = {{control, 1.0f}};
+    const DetailLayers layers = source.RenderLayers(request, ctx);
+    const compose::FaceWarp w = source.Warp(request);
+    const int upper = cv::countNonZero(w.changed.rowRange(0, middle));
+    const int lower = cv::countNonZero(w.changed.rowRange(middle, w.changed.rows));
+    if (control == "jawOpen") {
+      EXPECT_GT(lower, 0);
+      EXPECT_EQ(upper, 0) << "jawOpen changed an eye";
+    } else {
+      EXPECT_GT(upper, 0);
+      EXPECT_EQ(lower, 0) << control << " changed the mouth";
+    }
+    cv::Mat diff;
+    cv::absdiff(layers.frame.bgr, layers.network, diff);
+    cv::cvtColor(diff, diff, cv::COLOR_BGR2GRAY);
+    EXPECT_EQ(cv::countNonZero(diff & w.changed), 0) << "a layer of the photo drew a changed eye or mouth";
+    EXPECT_TRUE(cv::checkRange(layers.frame.bgr));
+  }
+  // One blink changes one eye: the two eyes lie on either side of the face's centre column.
+  request.expression.controls = {{"blinkLeft", 1.0f}};
+  const compose::FaceWarp blink = source.Warp(request);
+  const int centre = face.x + face.width / 2;
+  const int left = cv::countNonZero(blink.changed.colRange(0, centre));
+  const int right = cv::countNonZero(blink.changed.colRange(centre, blink.changed.cols));
+  EXPECT_TRUE((left == 0) != (right == 0)) << "left " << left << ", right " << right;
+}
+
+// A source whose fit has closed eyes (a blink) driven to eyes wide open: the eyes are the base
+// frame's, the rest of the face still the photo's; outputs finite and in range.
+TEST_F(Detail, ClosedEyeSourceWithEyesWideTarget) {
+  SourceAnalysis closed = *analysis_;
+  Expression blink;
+  blink.controls = {{"blinkLeft", 1.0f}, {"blinkRight", 1.0f}};
+  closed.morphable_fit.beta = ExpressionBeta(*closed.model, analysis_->morphable_fit.beta, blink);
+  const DetailFrameSource source(Base(), closed);
+  FrameRequest request;
+  request.view = source.SourcePose();
+  request.width = request.height = 128;
+  request.expression.coefficients_absolute = true;
+  request.expression.coefficients = analysis_->morphable_fit.beta;
+  request.expression.controls = {{"eyesWide", 1.0f}};
+  const compose::FaceWarp w = source.Warp(request);
+  ExpectSane(w, cv::Size(128, 128));
+  EXPECT_GT(cv::countNonZero(w.changed), 0);
+  EXPECT_GT(ValidFraction(w), 0.5) << "the rest of the face should still come from the photo";
+  RunContext ctx;
+  const DetailLayers layers = source.RenderLayers(request, ctx);
+  EXPECT_TRUE(cv::checkRange(layers.frame.bgr) && cv::checkRange(layers.frame.alpha));
+  cv::Mat diff;
+  cv::absdiff(layers.frame.bgr, layers.network, diff);
+  cv::cvtColor(diff, diff, cv::COLOR_BGR2GRAY);
+  EXPECT_EQ(cv::countNonZero(diff & w.changed), 0);
 }
 
 // The depth proxy (mode head): at the photo's own view, lifting each opaque pixel with the
