@@ -3,11 +3,14 @@
 // reconstruction (T_c, T_p), saved as an avatar file for `render` and the studio.
 // `avatar-studio render FILE.avatar [--yaw --pitch --roll] [--expr name=value ...] [--mode]
 // -o out.png [--alpha] [--depth]`: one frame of an avatar.
+// `avatar-studio export-mesh FILE.avatar -o head.glb|head.obj`: the avatar's geometry proxy with
+// the photo on it, for other programs (core/pipeline/head_mesh.h).
 
 #include <string>
 #include <vector>
 
 #include "app/commands.h"
+#include "core/pipeline/head_mesh.h"
 #include "core/pipeline/reconstruct.h"
 #include "core/pipeline/session.h"
 #include "core/pipeline/studio_backend.h"
@@ -99,5 +102,29 @@ struct RenderCommandOptions {
 
 int RunRender(const std::vector<std::string>& args);
 int RunRenderImpl(const RenderCommandOptions& options, RunContext& ctx);
+
+struct ExportMeshOptions {
+  // Avatar file to export.
+  std::string input;
+  // Mesh file to write: .glb (binary glTF 2.0, textures inside) or .obj (+ .mtl and PNGs beside it).
+  std::string output = "head.glb";
+  HeadMeshOptions mesh;
+  // Model selection (the network whose depth shapes hair, ears and neck).
+  SessionOptions session;
+  // Threads, data folder, verbosity.
+  CommonOptions common;
+
+  template <typename V>
+  void Visit(V&& v) {
+    v("output", output, "Mesh file to write: .glb (binary glTF) or .obj", 'o');
+    mesh.Visit(v);
+    session.Visit(v);
+    common.Visit(v);
+  }
+  void Validate() const;
+};
+
+int RunExportMesh(const std::vector<std::string>& args);
+int RunExportMeshImpl(const ExportMeshOptions& options, RunContext& ctx);
 
 }  // namespace avatar::app

@@ -7,19 +7,23 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cstdint>
 #include <filesystem>
+#include <iostream>
 #include <fstream>
 #include <iterator>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
 #include "app/commands.h"
 #include "cli/in_process.h"
+#include "common/run_process.h"
 #include "common/temp_dir.h"
 #include "core/io/data_paths.h"
 
@@ -178,6 +182,68 @@ TEST_F(RenderDetail, SavedAvatarsRenderWithThePhotosDetail) {
   const ProcessResult bad = Render({"--detail", "sharp"}, "bad.png");
   EXPECT_EQ(bad.exit_code, 2) << bad.out << bad.err;
   EXPECT_NE(bad.err.find("sharp"), std::string::npos) << bad.err;
+}
+
+// export-mesh (issue 32): a .glb the Khronos glTF validator accepts without errors, holding the
+// face mesh (468 vertices) with its texture; an .obj with its .mtl and textures; bad output
+// names and old avatar files are refused with a message.
+using ExportMesh = RenamedFlagsRender;
+TEST_F(ExportMesh, WritesGltfTheKhronosValidatorAcceptsAndObj) {
+  const std::string glb = (dir_ / "head.glb").string();
+  const ProcessResult r = InProcess({"export-mesh", Avatar(), "--random-weights", "--depth-size", "64", "-o", glb,
+                                     "--threads", "2"});
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("face 468 vertices"), std::string::npos) << r.out;
+  const std::string bytes = Bytes(glb);
+  ASSERT_GT(bytes.size(), 28u);
+  auto u32 = [&](size_t at) {
+    uint32_t v = 0;
+    for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(bytes[at + i]);
+    return v;
+  };
+  EXPECT_EQ(bytes.substr(0, 4), "glTF");
+  EXPECT_EQ(u32(4), 2u);
+  EXPECT_EQ(u32(8), bytes.size());
+  const uint32_t json_length = u32(12);
+  EXPECT_EQ(u32(16), 0x4E4F534Au);
+  const nlohmann::json j = nlohmann::json::parse(bytes.substr(20, json_length));
+  const size_t bin_at = 20 + json_length + 8;
+  ASSERT_EQ(u32(20 + json_length + 4), 0x004E4942u);
+  ASSERT_GE(j.at("meshes").size(), 1u);
+  EXPECT_EQ(j["meshes"][0]["name"], "face");
+  const int position = j["meshes"][0]["primitives"][0]["attributes"]["POSITION"];
+  EXPECT_EQ(j["accessors"][position]["count"], 468);
+  // Every texture is a PNG inside the binary chunk.
+  ASSERT_EQ(j.at("images").size(), j["meshes"].size());
+  for (const auto& image : j["images"]) {
+    const auto& view = j["bufferViews"][image["bufferView"].get<int>()];
+    const std::string png = bytes.substr(bin_at + view["byteOffset"].get<size_t>(), view["byteLength"].get<size_t>());
+    const cv::Mat decoded = cv::imdecode(std::vector<uchar>(png.begin(), png.end()), cv::IMREAD_COLOR);
+    EXPECT_FALSE(decoded.empty());
+  }
+  // The Khronos validator (npm gltf-validator, installed on first use by the script).
+  const ProcessResult v = avatar::testing::RunProcess("'" AVATAR_SOURCE_DIR "/scripts/validate-gltf' '" + glb + "'");
+  std::cout << v.out;
+  EXPECT_EQ(v.exit_code, 0) << v.out << v.err;
+  EXPECT_NE(v.out.find(": 0 errors"), std::string::npos) << v.out << v.err;
+
+  const ProcessResult obj =
+      InProcess({"export-mesh", Avatar(), "--random-weights", "--depth-size", "64", "-o", (dir_ / "head.obj").string()});
+  ASSERT_EQ(obj.exit_code, 0) << obj.out << obj.err;
+  EXPECT_TRUE(fs::exists(dir_ / "head.mtl"));
+  EXPECT_FALSE(cv::imread((dir_ / "head_face.png").string()).empty());
+  std::istringstream lines(Bytes(dir_ / "head.obj"));
+  int vertices = 0;
+  for (std::string line; std::getline(lines, line);) vertices += line.rfind("v ", 0) == 0 ? 1 : 0;
+  EXPECT_GE(vertices, 468);
+
+  const ProcessResult stl = InProcess({"export-mesh", Avatar(), "--random-weights", "-o", (dir_ / "head.stl").string()});
+  EXPECT_EQ(stl.exit_code, 2) << stl.err;
+  EXPECT_NE(stl.err.find(".glb"), std::string::npos) << stl.err;
+  EXPECT_FALSE(fs::exists(dir_ / "head.stl"));
+  const ProcessResult missing = InProcess({"export-mesh", (dir_ / "none.avatar").string(), "-o", glb});
+  EXPECT_NE(missing.exit_code, 0);
+  EXPECT_NE(missing.err.find("none.avatar"), std::string::npos) << missing.err;
 }
 
 TEST_F(RenamedFlagsRender, AnimateConfigAndTheOldPresetFlagExportTheSameFrames) {

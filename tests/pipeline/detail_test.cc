@@ -21,6 +21,8 @@
 #include "core/model/fusion_net.h"
 #include "core/pipeline/detail_source.h"
 #include "core/pipeline/fusion_input.h"
+#include "core/pipeline/head_mesh.h"
+#include "core/render/view_pose.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/model/checkpoint.h"
@@ -514,6 +516,124 @@ TEST_F(Detail, BadInputsAreRefused) {
   morphable::Beta nan_beta = analysis_->morphable_fit.beta;
   nan_beta[0] = std::nanf("");
   EXPECT_THROW(detail.Warp(analysis_->morphable_fit.camera, nan_beta, cv::Size(64, 64)), InvalidInput);
+}
+
+}  // namespace
+}  // namespace avatar
+
+namespace avatar {
+namespace {
+
+// A head that is a sphere (radius 0.45 about (0, 0, -0.1)): depth along each ray, opaque where
+// the ray meets it; the photo's pose of the sample portrait.
+class SphereSource : public FrameSource {
+ public:
+  // radius 0: nothing is opaque.
+  SphereSource(ViewPose pose, morphable::CameraLabel camera, double radius = 0.45)
+      : pose_(pose), camera_(camera), radius_(radius) {}
+  std::string Label() const override { return "sphere"; }
+  bool SupportsPose() const override { return true; }
+  std::vector<std::string> ExpressionControls() const override { return {}; }
+  ViewPose SourcePose() const override { return pose_; }
+  RenderedFrame Render(const FrameRequest& request, RunContext&) const override {
+    const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(render::CameraForView(request.view, camera_));
+    const cv::Matx33d k_inv = cam.k_normalised.inv(), to_world = cam.world_to_cam.t();
+    RenderedFrame f;
+    f.bgr = cv::Mat(request.height, request.width, CV_8UC3, cv::Scalar(90, 120, 160));
+    f.alpha = cv::Mat::zeros(request.height, request.width, CV_8UC1);
+    f.depth = cv::Mat(request.height, request.width, CV_32FC1, cv::Scalar(std::numeric_limits<float>::infinity()));
+    const cv::Vec3d centre(0.0, 0.0, -0.1);
+    for (int y = 0; y < request.height; ++y) {
+      for (int x = 0; x < request.width; ++x) {
+        cv::Vec3d d = to_world * (k_inv * cv::Vec3d((x + 0.5) / request.width, (y + 0.5) / request.height, 1.0));
+        d *= 1.0 / cv::norm(d);
+        const cv::Vec3d o = cam.centre - centre;
+        const double b = o.dot(d), c = o.dot(o) - radius_ * radius_, disc = b * b - c;
+        if (radius_ <= 0.0 || disc < 0.0) continue;
+        f.depth.at<float>(y, x) = static_cast<float>(-b - std::sqrt(disc));
+        f.alpha.at<uchar>(y, x) = 255;
+      }
+    }
+    return f;
+  }
+
+ private:
+  ViewPose pose_;
+  morphable::CameraLabel camera_;
+  double radius_;
+};
+
+// The exported mesh: the face part is the fitted mesh with its UV texture; the head part lies on
+// the head's surface (the sphere), faces the photo's camera, stays off the face and carries the
+// photo's UVs; a head that renders nothing leaves the face alone, with a warning.
+TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
+  const SphereSource sphere(Base()->SourcePose(), analysis_->morphable_fit.camera);
+  HeadMeshOptions options;
+  options.depth_size = 96;
+  RunContext ctx;
+  const HeadMesh mesh = BuildHeadMesh(*analysis_, sphere, options, ctx);
+  ASSERT_EQ(mesh.parts.size(), 2u);
+  EXPECT_TRUE(mesh.warnings.empty());
+  const TexturedMesh& face = mesh.parts[0];
+  const TexturedMesh& head = mesh.parts[1];
+  EXPECT_EQ(face.name, "face");
+  EXPECT_EQ(face.positions.size(), analysis_->model->topology().uv.size());
+  EXPECT_EQ(face.texture.size(), cv::Size(512, 512));
+  EXPECT_EQ(head.name, "head");
+  face.Validate();
+  head.Validate();
+  ASSERT_GT(head.triangles.size(), 1000u);
+  // On the sphere (the depth is smoothed: a small error at the curved rim).
+  std::vector<double> off;
+  for (const cv::Point3f& p : head.positions) off.push_back(std::abs(cv::norm(cv::Vec3d(p.x, p.y, p.z + 0.1)) - 0.45));
+  std::nth_element(off.begin(), off.begin() + off.size() / 2, off.end());
+  EXPECT_LT(off[off.size() / 2], 0.005);
+  for (const cv::Point2f& t : head.uv) {
+    ASSERT_GE(t.x, 0.0f);
+    ASSERT_LE(t.x, 1.0f);
+    ASSERT_GE(t.y, 0.0f);
+    ASSERT_LE(t.y, 1.0f);
+  }
+  // Counter-clockwise towards the camera (glTF's front faces), for both parts.
+  const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(analysis_->morphable_fit.camera);
+  for (const TexturedMesh* part : {&face, &head}) {
+    double towards = 0, away = 0;
+    for (const cv::Vec3i& f : part->triangles) {
+      const cv::Point3f a = part->positions[f[0]], b = part->positions[f[1]], c = part->positions[f[2]];
+      const cv::Point3f ab = b - a, ac = c - a;
+      const cv::Vec3d n = cv::Vec3d(ab.x, ab.y, ab.z).cross(cv::Vec3d(ac.x, ac.y, ac.z));
+      (n.dot(cam.centre - cv::Vec3d(a.x, a.y, a.z)) > 0 ? towards : away) += cv::norm(n);
+    }
+    EXPECT_GT(towards, 3.0 * away) << part->name;
+  }
+  // Off the face: no head vertex projects deep inside the face mesh's outline.
+  std::vector<cv::Point2f> face_px;
+  for (const cv::Point3f& p : face.positions) {
+    const cv::Point2d px = cam.ToPixel(cam.ToCamera(cv::Vec3d(p.x, p.y, p.z)), cv::Size(96, 96));
+    face_px.emplace_back(static_cast<float>(px.x), static_cast<float>(px.y));
+  }
+  std::vector<cv::Point2f> hull;
+  cv::convexHull(face_px, hull);
+  int inside = 0;
+  for (const cv::Point3f& p : head.positions) {
+    const cv::Point2d px = cam.ToPixel(cam.ToCamera(cv::Vec3d(p.x, p.y, p.z)), cv::Size(96, 96));
+    if (cv::pointPolygonTest(hull, cv::Point2f(static_cast<float>(px.x), static_cast<float>(px.y)), true) > 8.0) ++inside;
+  }
+  EXPECT_LT(inside, static_cast<int>(head.positions.size() / 50)) << inside << " head vertices inside the face";
+  // The .glb of both parts holds them (the Khronos validator runs on a CLI export: tests/cli).
+  const std::string glb = EncodeGlb(mesh.parts, "test");
+  ASSERT_GT(glb.size(), 20u);
+  EXPECT_EQ(glb.substr(0, 4), "glTF");
+  // Nothing opaque: the face alone, and the user is told.
+  const SphereSource nothing(Base()->SourcePose(), analysis_->morphable_fit.camera, 0.0);
+  const HeadMesh bare = BuildHeadMesh(*analysis_, nothing, options, ctx);
+  ASSERT_EQ(bare.parts.size(), 1u);
+  EXPECT_EQ(bare.parts[0].name, "face");
+  ASSERT_EQ(bare.warnings.size(), 1u);
+  EXPECT_NE(bare.warnings[0].find("face only"), std::string::npos) << bare.warnings[0];
+  HeadMeshOptions bad;
+  bad.depth_size = 4;
+  EXPECT_THROW(BuildHeadMesh(*analysis_, sphere, bad, ctx), InvalidOptions);
 }
 
 }  // namespace
