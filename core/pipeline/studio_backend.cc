@@ -1,6 +1,8 @@
 #include "core/pipeline/studio_backend.h"
 
+#include <cctype>
 #include <chrono>
+#include <filesystem>
 #include <map>
 #include <mutex>
 
@@ -8,7 +10,9 @@
 
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
+#include "core/io/image_io.h"
 #include "core/morphable/morphable.h"
+#include "core/pipeline/avatar_file_info.h"
 #include "core/pipeline/avatar_state.h"
 #include "core/pipeline/detail_source.h"
 #include "core/pipeline/morphable_preview.h"
@@ -222,6 +226,32 @@ std::shared_ptr<const FrameSource> SavedAvatarSource(std::shared_ptr<const Sessi
                           "it renders without the photo's detail: reconstruct the portrait again to get it."});
   }
   return network;
+}
+
+std::shared_ptr<const FrameSource> OpenAvatarSource(const std::string& input, const BackendOptions& options,
+                                                    RunContext& ctx) {
+  options.Validate();
+  std::string ext = std::filesystem::path(input).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (ext == ".avatar") {
+    ctx.Report("load avatar", 0.0, input);
+    SessionOptions so;
+    so.checkpoint = options.checkpoint;
+    so.data_dir = options.data_dir;
+    so.random_weights = options.random_weights;
+    // The avatar names its random weights (RandomModelId): rebuild exactly those.
+    if (so.random_weights && so.checkpoint.empty())
+      ParseRandomModelId(ReadAvatarFileInfo(input).model_id, &so.config, &so.seed);
+    const auto session = std::make_shared<const Session>(so);
+    return SavedAvatarSource(session, session->LoadAvatar(input), options);
+  }
+  ctx.Report("load portrait", 0.0, input);
+  const cv::Mat portrait = LoadImageBgr(input);
+  try {
+    return CreateFrameSource(portrait, options, ctx);
+  } catch (const InvalidInput& e) {
+    throw InvalidInput("portrait '" + input + "': " + e.what());
+  }
 }
 
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options) {

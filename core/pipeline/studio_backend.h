@@ -97,6 +97,12 @@ std::shared_ptr<const FrameSource> SavedAvatarSource(std::shared_ptr<const Sessi
                                                      const BackendOptions& options,
                                                      const RenderSettings* settings = nullptr);
 
+// The frame source of a portrait photo (CreateFrameSource) or of a saved FILE.avatar
+// (SavedAvatarSource, with the session these options select), by the file's extension. Errors
+// name the file. Throws like those two and LoadImageBgr.
+std::shared_ptr<const FrameSource> OpenAvatarSource(const std::string& input, const BackendOptions& options,
+                                                    RunContext& ctx);
+
 // The analyser for driving videos (face tracking + morphable fit), or a factory returning
 // null when this build cannot measure driving frames.
 FrameAnalyzerFactory DrivingAnalyzers(const BackendOptions& options);

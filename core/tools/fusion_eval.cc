@@ -13,6 +13,7 @@
 #include "core/pipeline/fusion_input.h"
 #include "core/train/fusion_training.h"
 #include "core/train/metrics.h"
+#include "core/tools/face_metrics.h"
 #include "core/train/perceptual.h"
 #include "core/util/error.h"
 #include "core/util/progress_line.h"
@@ -33,6 +34,8 @@ const char* FusionBucketOf(double d_yaw) {
 struct FusionSums {
   int64_t n = 0;
   double psnr = 0, ssim = 0, l1 = 0, perceptual = 0;
+  int64_t face_n = 0;
+  double csim = 0, aed = 0;
 };
 
 }  // namespace
@@ -58,6 +61,12 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
   PerceptualOptions po;
   po.data_dir = options.data_dir;
   const PerceptualLoss perceptual(po);
+  std::unique_ptr<face::FaceMetrics> face_metrics;
+  if (options.face_metrics) {
+    face::FaceMetricsOptions fo;
+    fo.data_dir = options.data_dir;
+    face_metrics = std::make_unique<face::FaceMetrics>(fo);
+  }
   std::vector<std::string> paths = {"network (bicubic)", "morphable preview", "geometric composite"};
   if (net) paths.push_back("learned fusion");
   const char* regions[] = {"frame", "valid warp", "outside warp"};
@@ -80,6 +89,14 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
     const torch::Tensor masks[] = {torch::Tensor(), valid, 1.0 - valid};
     // Features once per image; each region is a mask over the same feature distance maps.
     const std::vector<torch::Tensor> target_features = perceptual.Features(target);
+    auto kind_of = [&](int64_t b) {
+      const float k = s.meta[i + b][3].item<float>();
+      return std::string(k > 1.5f ? "synthetic" : (k > 0.5f ? "clip" : "photo"));
+    };
+    std::vector<face::FaceMeasurement> target_faces(m);
+    if (face_metrics)
+      for (int64_t b = 0; b < m; ++b)
+        target_faces[b] = face_metrics->Measure(BgrFromRgb(target[b]));
     for (size_t p = 0; p < outs.size(); ++p) {
       const std::vector<torch::Tensor> features = perceptual.Features(outs[p]);
       auto distance = [&](const torch::Tensor&, const torch::Tensor&, const torch::Tensor& mask) {
@@ -90,8 +107,10 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
         for (int64_t b = 0; b < m; ++b) {
           const torch::Tensor meta = s.meta[i + b];
           if (r > 0 && masks[r][b].sum().item<double>() < 16.0) continue;  // region absent in this frame
-          const float k = meta[3].item<float>();
-          const std::string kind = k > 1.5f ? "synthetic" : (k > 0.5f ? "clip" : "photo");
+          const std::string kind = kind_of(b);
+          face::PairFaceMetrics face_pair;
+          if (face_metrics && r == 0)
+            face_pair = face_metrics->Compare(face_metrics->Measure(BgrFromRgb(outs[p][b])), target_faces[b]);
           for (const std::string bucket : {std::string(FusionBucketOf(meta[0].item<float>())), std::string("all")}) {
             FusionSums& sum = sums[kind + "|" + bucket + "|" + regions[r] + "|" + paths[p]];
             const double psnr = im.psnr[b].item<double>();
@@ -100,6 +119,11 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
             sum.ssim += im.ssim[b].item<double>();
             sum.l1 += im.l1[b].item<double>();
             sum.perceptual += im.perceptual[b].item<double>();
+            if (face_pair.valid()) {
+              ++sum.face_n;
+              sum.csim += face_pair.csim;
+              sum.aed += face_pair.aed;
+            }
           }
         }
       }
@@ -132,6 +156,11 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
           const FusionSums& t = it->second;
           FusionEvalRow row{kind, bucket, region, path, t.n, t.psnr / t.n, t.ssim / t.n, t.l1 / t.n,
                             t.perceptual / t.n};
+          row.face_pairs = t.face_n;
+          if (t.face_n > 0) {
+            row.csim = t.csim / t.face_n;
+            row.aed = t.aed / t.face_n;
+          }
           report.rows.push_back(row);
         }
       }
@@ -149,14 +178,20 @@ std::string FusionEvalMarkdown(const FusionEvalReport& report) {
   std::ostringstream out;
   out << std::fixed;
   std::string section;
+  bool faces = false;
   for (const auto& r : report.rows) {
     const std::string s = r.kind + " pairs, " + r.region;
     if (s != section) {
       section = s;
-      out << "\n### " << s << "\n\n| yaw bucket | path | pairs | PSNR | SSIM | L1 | perceptual |\n|---|---|---|---|---|---|---|\n";
+      faces = false;
+      for (const auto& o : report.rows) faces = faces || (o.kind + " pairs, " + o.region == s && o.face_pairs > 0);
+      out << "\n### " << s << "\n\n| yaw bucket | path | pairs | PSNR | SSIM | L1 | perceptual |"
+          << (faces ? " faces | CSIM | AED |\n|---|---|---|---|---|---|---|---|---|---|\n" : "\n|---|---|---|---|---|---|---|\n");
     }
     out << "| " << r.bucket << " | " << r.path << " | " << r.pairs << " | " << std::setprecision(2) << r.psnr << " | "
-        << std::setprecision(3) << r.ssim << " | " << r.l1 << " | " << r.perceptual << " |\n";
+        << std::setprecision(3) << r.ssim << " | " << r.l1 << " | " << r.perceptual << " |";
+    if (faces) out << " " << r.face_pairs << " | " << r.csim << " | " << std::setprecision(4) << r.aed << " |";
+    out << "\n";
   }
   return out.str();
 }

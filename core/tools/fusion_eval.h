@@ -18,7 +18,10 @@ struct FusionEvalOptions {
   std::string weights;      // fusion net weights ("" = no learned row)
   std::string sheet;        // contact sheet PNG ("" = none): network | preview | composite | learned | target
   int sheet_rows = 8;
-  std::string data_dir;     // MobileNetV2 weights for the perceptual distance
+  // CSIM and AED (core/tools/face_metrics.h) of every path against the target on whole frames (a
+  // face analysis and expression fit per image: slow).
+  bool face_metrics = false;
+  std::string data_dir;     // MobileNetV2 weights for the perceptual distance, the face models
 
   template <typename V>
   void Visit(V&& v) {
@@ -27,6 +30,7 @@ struct FusionEvalOptions {
     v("weights", weights, "Fusion net weights for the learned row");
     v("sheet", sheet, "Contact sheet PNG of validation frames");
     v("sheet_rows", sheet_rows, "Frames on the contact sheet");
+    v("face_metrics", face_metrics, "Also CSIM and AED of every path on whole frames (slow)");
   }
   void Validate() const;
 };
@@ -38,6 +42,10 @@ struct FusionEvalRow {
   std::string path;    // network (bicubic), morphable preview, geometric composite, learned fusion
   int64_t pairs = 0;
   double psnr = 0, ssim = 0, l1 = 0, perceptual = 0;
+  // With face_metrics (whole frames): pairs with a face in the output and the target,
+  // and their mean identity cosine and expression distance.
+  int64_t face_pairs = 0;
+  double csim = 0, aed = 0;
 };
 
 struct FusionEvalReport {

@@ -18,6 +18,7 @@
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "app/cli_util.h"
 #include "app/cmd_bench.h"
@@ -244,6 +245,30 @@ TEST_F(ExportMesh, WritesGltfTheKhronosValidatorAcceptsAndObj) {
   const ProcessResult missing = InProcess({"export-mesh", (dir_ / "none.avatar").string(), "-o", glb});
   EXPECT_NE(missing.exit_code, 0);
   EXPECT_NE(missing.err.find("none.avatar"), std::string::npos) << missing.err;
+}
+
+// live (issue 34): without a camera it says so and exits 1; a sample clip played as a camera
+// drives a saved avatar, and the recording holds the frames in real time.
+using Live = RenamedFlagsRender;
+TEST_F(Live, WithoutACameraSaysSoAndAClipPlayedAsACameraDrivesTheAvatar) {
+  const ProcessResult none = InProcess({"live", Avatar(), "--random-weights", "--camera", "61"});
+  EXPECT_EQ(none.exit_code, 1) << none.out << none.err;
+  EXPECT_NE(none.err.find("no camera /dev/video61"), std::string::npos) << none.err;
+  const std::string clip =
+      DataPaths::Resolve().Require("samples/cap13_edit2.mp4", "a sample driving clip (run scripts/setup)").string();
+  const ProcessResult missing = InProcess({"live", (dir_ / "none.avatar").string(), "--camera", clip});
+  EXPECT_EQ(missing.exit_code, 1) << missing.err;
+  EXPECT_NE(missing.err.find("none.avatar"), std::string::npos) << missing.err;
+  const std::string out = (dir_ / "live.mp4").string();
+  const ProcessResult live = InProcess({"live", Avatar(), "--random-weights", "--camera", clip, "--seconds", "1.5",
+                                        "--size", "64", "--detail", "off", "-o", out, "--threads", "2"});
+  ASSERT_EQ(live.exit_code, 0) << live.out << live.err;
+  EXPECT_NE(live.out.find("fps delivered"), std::string::npos) << live.out;
+  EXPECT_NE(live.out.find("recorded to"), std::string::npos) << live.out;
+  EXPECT_NE(live.err.find("Neutral reference"), std::string::npos) << live.err;
+  cv::VideoCapture recorded(out);
+  ASSERT_TRUE(recorded.isOpened());
+  EXPECT_GE(recorded.get(cv::CAP_PROP_FRAME_COUNT), 10.0);
 }
 
 TEST_F(RenamedFlagsRender, AnimateConfigAndTheOldPresetFlagExportTheSameFrames) {

@@ -9,6 +9,8 @@
 //  - bad options and a folder without a dataset are refused.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include <filesystem>
 #include <iostream>
 
@@ -119,6 +121,7 @@ TEST_F(FusionSet, EvalReportsEveryPathAndAnUntrainedNetScoresAsTheComposite) {
   o.split = "train";
   o.weights = (*dir_ / "untrained.ckpt").string();
   o.sheet = (*dir_ / "sheet.png").string();
+  o.face_metrics = true;
   RunContext ctx;
   const FusionEvalReport r = EvaluateFusionSet(o, ctx);
   EXPECT_EQ(r.samples, report_.train_samples);
@@ -130,6 +133,14 @@ TEST_F(FusionSet, EvalReportsEveryPathAndAnUntrainedNetScoresAsTheComposite) {
     if (row.kind != "photo" || row.bucket != "all" || row.region != "frame") continue;
     ++paths;
     EXPECT_EQ(row.pairs, 2);
+    // Face metrics on whole frames: the preview is a face mask that the analyser may miss, the
+    // others hold the photo's face.
+    EXPECT_LE(row.face_pairs, row.pairs);
+    if (row.path != "morphable preview") EXPECT_GT(row.face_pairs, 0) << row.path;
+    EXPECT_GE(row.csim, -1.0);
+    EXPECT_LE(row.csim, 1.0);
+    EXPECT_GE(row.aed, 0.0);
+    EXPECT_TRUE(std::isfinite(row.aed));
     if (row.path == "geometric composite") composite = &row;
     if (row.path == "learned fusion") learned = &row;
   }
@@ -137,8 +148,10 @@ TEST_F(FusionSet, EvalReportsEveryPathAndAnUntrainedNetScoresAsTheComposite) {
   ASSERT_TRUE(composite != nullptr && learned != nullptr);
   EXPECT_NEAR(learned->psnr, composite->psnr, 0.5);
   EXPECT_NEAR(learned->l1, composite->l1, 0.01);
+  EXPECT_NEAR(learned->csim, composite->csim, 0.05);
   const std::string md = FusionEvalMarkdown(r);
   EXPECT_NE(md.find("| all | learned fusion | 2 |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| faces | CSIM | AED |"), std::string::npos) << md;
 }
 
 TEST_F(FusionSet, BadOptionsAndAMissingDatasetAreRefused) {
