@@ -85,7 +85,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   std::vector<morphable::ScreenVertex> target_screen;
   Project(target_cam, target_world, size, &target_points, &target_screen);
   const morphable::RasterBuffers raster = morphable::Rasterize(target_screen, model_.topology().triangles, size);
-  const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, raster, size);
+  const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, size);
 
   const auto& triangles = model_.topology().triangles;
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
@@ -138,10 +138,15 @@ double FaceDetail::EyeMouthMotion(const std::vector<cv::Point3f>& target_world, 
 
 cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
                                     const std::vector<morphable::ScreenVertex>& target_screen,
-                                    const morphable::RasterBuffers& raster, cv::Size size) const {
+                                    cv::Size size) const {
   cv::Mat changed = cv::Mat::zeros(size, CV_8UC1);
   std::vector<std::vector<cv::Point>> polys;
-  for (const auto* region : {&face::mesh_index::RightEye(), &face::mesh_index::LeftEye(), &face::mesh_index::LipsOuter()}) {
+  // "mesh": the openings only (inside the lid margin, inside the inner lip line), which the mesh
+  // spans with stretched lids and lips; "network": the whole eye (lid margin) and mouth (outer lip
+  // line), with a margin.
+  const bool openings = options_.changed_eye_mouth == "mesh";
+  const std::vector<int>& mouth = openings ? face::mesh_index::LipsInner() : face::mesh_index::LipsOuter();
+  for (const auto* region : {&face::mesh_index::RightEye(), &face::mesh_index::LeftEye(), &mouth}) {
     if (EyeMouthMotion(target_world, *region) <= options_.eye_mouth_motion) continue;
     std::vector<cv::Point> poly;
     bool in_front = true;
@@ -155,9 +160,7 @@ cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world
   }
   if (polys.empty()) return changed;
   cv::fillPoly(changed, polys, cv::Scalar(255), cv::LINE_8, 4);  // 4 fractional bits
-  if (options_.changed_eye_mouth == "mesh") {
-    changed.setTo(0, raster.triangle >= 0);  // lids and lips follow the mesh; openings do not
-  } else {
+  if (!openings) {
     // A margin around the contour: the photo's lids and lips there moved with the expression too.
     const int margin = std::max(1, static_cast<int>(std::lround(0.015 * size.height)));
     cv::dilate(changed, changed, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * margin + 1, 2 * margin + 1)));

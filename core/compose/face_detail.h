@@ -4,9 +4,10 @@
 // expression looks up the same barycentric point of the mesh at the source camera and expression
 // in the aligned photo, when the photo saw that point (source depth test) and it belongs to the
 // person (matte). Where an eye or the mouth changes with the expression (its contour on the mesh
-// moves), the photo cannot show it (a closed eye has no pupil to open): that region of the target
-// is marked `changed` and left to the base frame (the network's expression branch), or, with
-// changed_eye_mouth "mesh", only its openings (lips and lids still follow the mesh).
+// moves), the photo cannot show its inside (a closed eye has no pupil to open): the opening of that
+// eye or of the mouth in the target is marked `changed` and left to the base frame (the network's
+// expression branch) while lids and lips follow the mesh; with changed_eye_mouth "network" the
+// whole eye or mouth is.
 
 #include <string>
 #include <vector>
@@ -31,10 +32,11 @@ struct FaceDetailOptions {
   // lips by 0.16, a smile the lower lids by 0.04 and eyesWide the lids by 0.016 (printed by
   // pipeline/Detail.ChangedEyesAndMouthComeFromTheBaseFrame): blinks and mouth motion count.
   double eye_mouth_motion = 0.05;
-  // What a changed eye or mouth shows: "network" (the whole region comes from the base frame: the
-  // photo's pixels there belong to the other expression) or "mesh" (the photo's lids and lips
-  // follow the mesh; only the openings the mesh does not cover come from the base frame).
-  std::string changed_eye_mouth = "network";
+  // What a changed eye or mouth shows: "mesh" (the photo's lids and lips follow the mesh; the
+  // openings - inside the lid margin, inside the inner lip line - come from the base frame, since
+  // the photo's eye or mouth interior belongs to the other expression) or "network" (the whole
+  // eye and mouth, with a margin, come from the base frame).
+  std::string changed_eye_mouth = "mesh";
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -77,8 +79,7 @@ class FaceDetail {
 
  private:
   cv::Mat ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
-                          const std::vector<morphable::ScreenVertex>& target_screen,
-                          const morphable::RasterBuffers& raster, cv::Size size) const;
+                          const std::vector<morphable::ScreenVertex>& target_screen, cv::Size size) const;
 
   const morphable::MorphableModel& model_;
   morphable::FitResult fit_;

@@ -29,6 +29,10 @@ const std::vector<int>& LipsOuter() {
   static const std::vector<int> v = {61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 267, 0, 37, 39, 40, 185};
   return v;
 }
+const std::vector<int>& LipsInner() {
+  static const std::vector<int> v = {78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308, 324, 318, 402, 317, 14, 87, 178, 88, 95};
+  return v;
+}
 const std::array<int, 68>& Ibug68() {
   static const std::array<int, 68> v = {
       // jaw, from the image-left ear down the chin to the image-right ear

@@ -27,6 +27,8 @@ const std::vector<int>& LeftEye();
 const std::vector<int>& RightBrow();
 const std::vector<int>& LeftBrow();
 const std::vector<int>& LipsOuter();
+// The inner lip line (the mouth's opening), from the subject's right corner over the upper lip.
+const std::vector<int>& LipsInner();
 // 68 vertices in iBUG-68 order (jaw 0-16, brows 17-26, nose 27-35, eyes 36-47, mouth 48-67),
 // chosen by anatomy for the cross-check against dlib's 68-point predictor.
 const std::array<int, 68>& Ibug68();

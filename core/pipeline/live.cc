@@ -171,7 +171,7 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
   last.face_found = false;
   bool have_sample = false, face_was_found = true;
   cv::Size frame_size;
-  std::vector<double> latencies;
+  std::vector<double> latencies, analyse_ms, render_ms;
   LiveClock::time_point first{}, last_delivered{};
   auto note = [&](LiveFrameInfo& info, const std::string& text) {
     info.note = info.note.empty() ? text : info.note + " " + text;
@@ -180,7 +180,9 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
   for (;;) {
     ctx.ThrowIfCancelled();
     if (options.seconds > 0.0 && stats.delivered > 0 && Seconds(LiveClock::now() - first) >= options.seconds) {
-      stats.ended = "the " + std::to_string(options.seconds) + " s asked for have passed";
+      std::ostringstream reason;
+      reason << "the " << options.seconds << " s asked for have passed";
+      stats.ended = reason.str();
       break;
     }
     CameraFrame frame;
@@ -188,7 +190,9 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
       if (camera.Ended()) {
         stats.ended = camera.Error().empty() ? "the video ended" : camera.Error();
       } else {
-        stats.ended = "the camera delivered no frame for " + std::to_string(options.stall_seconds) + " s";
+        std::ostringstream reason;
+        reason << "the camera delivered no frame for " << options.stall_seconds << " s";
+        stats.ended = reason.str();
       }
       break;
     }
@@ -202,7 +206,9 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
                      std::to_string(frame.bgr.rows) + "; tracking restarted.");
     }
     frame_size = frame.bgr.size();
+    const LiveClock::time_point analyse_start = LiveClock::now();
     const FrameMeasurement m = analyzer.Measure(frame.bgr, ctx);
+    info.analyse_ms = 1000.0 * Seconds(LiveClock::now() - analyse_start);
     if (m.face_found) {
       if (options.driving.relative && !transfer.Neutral().has_value()) {
         transfer.SetNeutral(m);  // the automatic neutral reference: the first face seen
@@ -226,8 +232,12 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
     const FrameRequest request = ComposeFrame(source.SourcePose(), ViewPose{}, FrameExpression{},
                                               have_sample ? &last : nullptr, options.follow_pose, options.width,
                                               options.height);
+    const LiveClock::time_point render_start = LiveClock::now();
     const RenderedFrame rendered = source.Render(request, ctx);
     const LiveClock::time_point done = LiveClock::now();
+    info.render_ms = 1000.0 * Seconds(done - render_start);
+    analyse_ms.push_back(info.analyse_ms);
+    render_ms.push_back(info.render_ms);
     info.latency_ms = 1000.0 * Seconds(done - frame.captured);
     latencies.push_back(info.latency_ms);
     ++stats.delivered;
@@ -242,6 +252,12 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
     std::vector<double> sorted = latencies;
     std::sort(sorted.begin(), sorted.end());
     stats.latency_median_ms = sorted[sorted.size() / 2];
+    auto median = [](std::vector<double> v) {
+      std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+      return v[v.size() / 2];
+    };
+    stats.analyse_median_ms = median(analyse_ms);
+    stats.render_median_ms = median(render_ms);
     stats.latency_p95_ms = sorted[std::min(sorted.size() - 1, static_cast<size_t>(std::ceil(0.95 * sorted.size())) - 1)];
   }
   return stats;

@@ -132,6 +132,8 @@ struct LiveOptions {
 struct LiveFrameInfo {
   int64_t capture_index = -1;
   double latency_ms = 0.0;      // from capture to the rendered frame
+  double analyse_ms = 0.0;      // face tracking and fit of the camera frame
+  double render_ms = 0.0;       // the avatar's frame
   bool face_found = false;      // false: the last pose and expression are held
   DrivingSample sample;         // what drove the frame
   std::string note;             // a change the user should be told about ("" = none)
@@ -143,6 +145,7 @@ struct LiveStats {
   double delivered_fps = 0.0;
   double camera_fps = 0.0;
   double latency_median_ms = 0.0, latency_p95_ms = 0.0;
+  double analyse_median_ms = 0.0, render_median_ms = 0.0;
   std::string ended;             // why the session ended
   std::vector<std::string> notes;  // every note, in order
 };
