@@ -93,7 +93,8 @@ int RunLiveImpl(LiveCommandOptions options, RunContext& ctx) {
             << " dropped, newest frame wins; " << stats.no_face << " without a face) in " << std::fixed
             << std::setprecision(1) << stats.seconds << " s: " << std::setprecision(2) << stats.delivered_fps
             << " fps delivered (camera " << stats.camera_fps << " fps), latency capture to frame median "
-            << std::setprecision(0) << stats.latency_median_ms << " ms, p95 " << stats.latency_p95_ms << " ms. Ended: "
+            << std::setprecision(0) << stats.latency_median_ms << " ms, p95 " << stats.latency_p95_ms << " ms (median "
+            << stats.analyse_median_ms << " ms tracking and fit, " << stats.render_median_ms << " ms rendering). Ended: "
             << stats.ended << ". Rendered by " << source->Label();
   if (sink) std::cout << "; recorded to '" << options.output << "' (" << sink->FramesWritten() << " frames)";
   std::cout << ".\n";
