@@ -37,12 +37,24 @@ void FaceDetailOptions::Validate() const {
       << "the detail feather must be in [0, 0.25], got " << feather;
   AVATAR_CHECK_OPTION(std::isfinite(eye_mouth_motion) && eye_mouth_motion >= 0.0)
       << "the eye/mouth motion threshold must be a finite number >= 0, got " << eye_mouth_motion;
+  AVATAR_CHECK_OPTION(std::isfinite(closed_eye_ratio) && closed_eye_ratio >= 0.0 && closed_eye_ratio < 1.0)
+      << "the closed-eye ratio must be in [0, 1), got " << closed_eye_ratio;
   AVATAR_CHECK_OPTION(changed_eye_mouth == "network" || changed_eye_mouth == "mesh")
       << "a changed eye or mouth comes from 'network' or 'mesh', got '" << changed_eye_mouth << "'";
 }
 
+double EyeOpenRatio(const std::vector<cv::Point2d>& points, int eye) {
+  static const int kLids[2][4] = {{159, 145, 33, 133}, {386, 374, 263, 362}};  // upper, lower, corners
+  const int* i = kLids[eye == 0 ? 0 : 1];
+  if (points.size() <= 386) return 0.0;
+  const double width = cv::norm(points[i[2]] - points[i[3]]);
+  if (!(width > 1e-9)) return 0.0;
+  return cv::norm(points[i[0]] - points[i[1]]) / width;
+}
+
 FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitResult fit, cv::Mat photo, cv::Mat matte,
-                       cv::Mat eye_mouth, const FaceDetailOptions& options)
+                       cv::Mat eye_mouth, const FaceDetailOptions& options,
+                       const std::vector<cv::Point3f>& photo_landmarks)
     : model_(model),
       fit_(std::move(fit)),
       photo_(std::move(photo)),
@@ -69,6 +81,11 @@ FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitRes
   std::vector<morphable::ScreenVertex> screen;
   Project(cam, source_world_, photo_.size(), &camera_points, &screen);
   source_depth_ = morphable::Rasterize(screen, model_.topology().triangles, photo_.size()).depth;
+  if (photo_landmarks.size() == screen.size()) {
+    std::vector<cv::Point2d> points;
+    for (const cv::Point3f& p : photo_landmarks) points.emplace_back(p.x, p.y);
+    for (int eye = 0; eye < 2; ++eye) eye_closed_[eye] = EyeOpenRatio(points, eye) < options_.closed_eye_ratio;
+  }
 }
 
 FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable::Beta& beta, cv::Size size) const {
@@ -146,8 +163,14 @@ cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world
   // line), with a margin.
   const bool openings = options_.changed_eye_mouth == "mesh";
   const std::vector<int>& mouth = openings ? face::mesh_index::LipsInner() : face::mesh_index::LipsOuter();
-  for (const auto* region : {&face::mesh_index::RightEye(), &face::mesh_index::LeftEye(), &mouth}) {
-    if (EyeMouthMotion(target_world, *region) <= options_.eye_mouth_motion) continue;
+  std::vector<cv::Point2d> target_points;
+  for (const morphable::ScreenVertex& p : target_screen) target_points.emplace_back(p.x, p.y);
+  const std::vector<int>* regions[] = {&face::mesh_index::RightEye(), &face::mesh_index::LeftEye(), &mouth};
+  for (int r = 0; r < 3; ++r) {
+    const std::vector<int>* region = regions[r];
+    // A closed eye of the photo cannot show an open one, whatever the fit says.
+    const bool opened = r < 2 && eye_closed_[r] && EyeOpenRatio(target_points, r) >= options_.closed_eye_ratio;
+    if (!opened && EyeMouthMotion(target_world, *region) <= options_.eye_mouth_motion) continue;
     std::vector<cv::Point> poly;
     bool in_front = true;
     for (const int v : *region) {

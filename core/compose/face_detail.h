@@ -37,6 +37,11 @@ struct FaceDetailOptions {
   // the photo's eye or mouth interior belongs to the other expression) or "network" (the whole
   // eye and mouth, with a margin, come from the base frame).
   std::string changed_eye_mouth = "mesh";
+  // An eye of the photo whose lid gap over its width (the photo's facemesh landmarks, 159-145 over
+  // 33-133 and 386-374 over 263-362) is below this is closed: wherever the target's eye is open
+  // (the same ratio on the target mesh above it) its opening comes from the base frame too, even
+  // when the fit did not register the blink. Open eyes measure 0.25-0.35.
+  double closed_eye_ratio = 0.12;
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -62,8 +67,13 @@ class FaceDetail {
   // matte (CV_32FC1 in [0,1], same size; empty = all person), `eye_mouth` its eye/mouth mask
   // (CV_8UC1; empty = none). Renders the source view's depth once (the per-avatar bake). The
   // model must outlive this object. Throws InvalidInput for mismatched sizes or types.
+  // `photo_landmarks` (facemesh points in the photo's pixels; empty = unknown) tell closed eyes.
   FaceDetail(const morphable::MorphableModel& model, morphable::FitResult fit, cv::Mat photo, cv::Mat matte,
-             cv::Mat eye_mouth, const FaceDetailOptions& options = {});
+             cv::Mat eye_mouth, const FaceDetailOptions& options = {},
+             const std::vector<cv::Point3f>& photo_landmarks = {});
+
+  // Whether the photo's right / left eye (subject's) is closed (closed_eye_ratio).
+  bool PhotoEyeClosed(int eye) const { return eye_closed_[eye]; }
 
   // The photo warped to `camera` with expression `beta` (the model's expression coefficients,
   // absolute) at `size`. Outputs are finite; an empty result (all invalid) when the mesh is not
@@ -89,7 +99,12 @@ class FaceDetail {
   FaceDetailOptions options_;
   std::vector<cv::Point3f> source_world_;  // mesh at the source expression, world
   cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
+  bool eye_closed_[2] = {false, false};    // the photo's right and left eye
 };
+
+// Lid gap over eye width of the subject's right (0) or left (1) eye from facemesh-ordered points
+// (x, y used); 0 for a degenerate eye.
+double EyeOpenRatio(const std::vector<cv::Point2d>& points, int eye);
 
 // The warp of `photo` by per-pixel source positions (map_x, map_y: photo pixels, centres at
 // i + 0.5; anything where `valid` is 0): one bilinear lookup, black outside `valid`, and the

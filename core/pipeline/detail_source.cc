@@ -75,7 +75,7 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     : base_(std::move(base)),
       model_(analysis.model),
       detail_(ModelOf(analysis), analysis.morphable_fit, analysis.portrait.image_unmatted, analysis.portrait.matte,
-              analysis.portrait.eye_mouth_mask, options.face),
+              analysis.portrait.eye_mouth_mask, options.face, analysis.portrait.landmarks.points),
       options_(options) {
   AVATAR_CHECK_INPUT(base_ != nullptr) << "detail: no base frame source";
   options_.Validate();

@@ -224,6 +224,37 @@ TEST_F(Detail, ClosedEyeSourceWithEyesWideTarget) {
   EXPECT_EQ(cv::countNonZero(diff & w.changed), 0);
 }
 
+// A photo whose eyes are closed (its landmarks' lids shut) while the fit's mesh keeps them open
+// (a blink the fit did not register): at the source expression the mesh's open eyes are changed
+// regions (the photo has no open eye to show); with the real (open) landmarks nothing is.
+TEST_F(Detail, ClosedEyesOfThePhotoAreChangedWhereTheTargetsEyesAreOpen) {
+  const auto& lm = analysis_->portrait.landmarks.points;
+  ASSERT_EQ(lm.size(), analysis_->model->topology().uv.size());
+  const compose::FaceDetail open(*analysis_->model, analysis_->morphable_fit, analysis_->portrait.image_unmatted,
+                                 analysis_->portrait.matte, analysis_->portrait.eye_mouth_mask, {}, lm);
+  EXPECT_FALSE(open.PhotoEyeClosed(0));
+  EXPECT_FALSE(open.PhotoEyeClosed(1));
+  std::vector<cv::Point3f> shut = lm;
+  shut[159] = shut[145];  // the subject's right upper lid on the lower one
+  const compose::FaceDetail closed(*analysis_->model, analysis_->morphable_fit, analysis_->portrait.image_unmatted,
+                                   analysis_->portrait.matte, analysis_->portrait.eye_mouth_mask, {}, shut);
+  EXPECT_TRUE(closed.PhotoEyeClosed(0));
+  EXPECT_FALSE(closed.PhotoEyeClosed(1));
+  const cv::Size size(128, 128);
+  const compose::FaceWarp at_open = open.Warp(analysis_->morphable_fit.camera, analysis_->morphable_fit.beta, size);
+  const compose::FaceWarp at_closed = closed.Warp(analysis_->morphable_fit.camera, analysis_->morphable_fit.beta, size);
+  ExpectSane(at_closed, size);
+  EXPECT_EQ(cv::countNonZero(at_open.changed), 0);
+  const cv::Rect face = cv::boundingRect(at_closed.face);
+  const int changed = cv::countNonZero(at_closed.changed);
+  EXPECT_GT(changed, 0);
+  EXPECT_EQ(cv::countNonZero(at_closed.changed.rowRange(face.y + face.height / 2, size.height)), 0) << "not an eye";
+  EXPECT_EQ(cv::countNonZero(at_closed.valid & at_closed.changed), 0);
+  compose::FaceDetailOptions bad;
+  bad.closed_eye_ratio = 1.5;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
 // The depth proxy (mode head): at the photo's own view, lifting each opaque pixel with the
 // base's depth and projecting it back into the photo gives the photo back.
 TEST_F(Detail, DepthWarpAtTheSourceViewGivesThePhotoBack) {
