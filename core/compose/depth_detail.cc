@@ -95,8 +95,7 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
   const morphable::PinholeCamera tcam = morphable::PinholeCamera::FromLabel(target.camera);
   const morphable::PinholeCamera scam = morphable::PinholeCamera::FromLabel(source_.camera);
   const cv::Mat depth = SmoothDepth(target.depth, options_.depth_smoothing);
-  const cv::Matx33d k_inv = tcam.k_normalised.inv();
-  const cv::Matx33d cam_to_world = tcam.world_to_cam.t();
+  const PixelRays rays(tcam);
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
   const double sx_scale = static_cast<double>(source_.depth.cols) / photo_.cols;
   const double sy_scale = static_cast<double>(source_.depth.rows) / photo_.rows;
@@ -111,13 +110,7 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
       out.face.at<uchar>(y, x) = 255;
       const float t = depth.at<float>(y, x);
       if (!std::isfinite(t) || t <= 0.0f) continue;
-      // The pixel's ray (unit direction, as the volume renderer casts it) at depth t.
-      const cv::Vec3d uv1((x + 0.5) / size.width, (y + 0.5) / size.height, 1.0);
-      cv::Vec3d dir = cam_to_world * (k_inv * uv1);
-      const double len = cv::norm(dir);
-      if (!(len > 0.0)) continue;
-      dir *= 1.0 / len;
-      const cv::Vec3d world = tcam.centre + static_cast<double>(t) * dir;
+      const cv::Vec3d world = rays.Point(x, y, size, t);
       const cv::Vec3d p = scam.ToCamera(world);
       if (!(p[2] > 1e-6)) continue;
       const cv::Point2d px = scam.ToPixel(p, photo_.size());

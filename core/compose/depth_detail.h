@@ -57,6 +57,23 @@ class DepthDetail {
   DepthDetailOptions options_;
 };
 
+// The world point at distance `depth` along the ray of pixel (x, y) (centres at i + 0.5) of an
+// image of `size` seen by `camera` (unit direction, as the volume renderer casts it). The one
+// lift of a depth map: the depth warp and the exported head mesh use it.
+class PixelRays {
+ public:
+  explicit PixelRays(const morphable::PinholeCamera& camera)
+      : camera_(camera), k_inv_(camera.k_normalised.inv()), cam_to_world_(camera.world_to_cam.t()) {}
+  cv::Vec3d Point(double x, double y, cv::Size size, double depth) const {
+    cv::Vec3d dir = cam_to_world_ * (k_inv_ * cv::Vec3d((x + 0.5) / size.width, (y + 0.5) / size.height, 1.0));
+    return camera_.centre + depth / cv::norm(dir) * dir;
+  }
+
+ private:
+  morphable::PinholeCamera camera_;
+  cv::Matx33d k_inv_, cam_to_world_;
+};
+
 // Non-finite depth filled from its finite neighbours and smoothed (sigma = `smoothing` x height);
 // pixels with no finite value within reach stay +inf. For tests and the warp.
 cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing);

@@ -119,8 +119,7 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
   TexturedMesh head;
   head.name = "head";
   head.texture = photo;
-  const cv::Matx33d k_inv = cam.k_normalised.inv();
-  const cv::Matx33d cam_to_world = cam.world_to_cam.t();
+  const compose::PixelRays rays(cam);
   cv::Mat index(size, CV_32SC1, cv::Scalar(-1));
   for (int y = 0; y < n; ++y) {
     for (int x = 0; x < n; ++x) {
@@ -128,10 +127,7 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
       if (!std::isfinite(t) || t <= 0.0f || frame.alpha.at<uchar>(y, x) < 128 ||
           matte.at<float>(y, x) < options.min_matte)
         continue;
-      const cv::Vec3d uv1((x + 0.5) / n, (y + 0.5) / n, 1.0);
-      cv::Vec3d dir = cam_to_world * (k_inv * uv1);
-      dir *= 1.0 / cv::norm(dir);
-      const cv::Vec3d p = cam.centre + static_cast<double>(t) * dir;
+      const cv::Vec3d p = rays.Point(x, y, size, t);
       index.at<int>(y, x) = static_cast<int>(head.positions.size());
       head.positions.emplace_back(static_cast<float>(p[0]), static_cast<float>(p[1]), static_cast<float>(p[2]));
       head.uv.emplace_back(static_cast<float>((x + 0.5) / n), static_cast<float>((y + 0.5) / n));
