@@ -3,16 +3,34 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include <opencv2/imgproc.hpp>
 
 #include "core/render/view_pose.h"
 #include "core/util/error.h"
+#include "core/util/push_pull.h"
 
 namespace avatar::compose {
 namespace {
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
+
+// A depth map (CV_32FC1, non-finite = empty) as its values (0 where empty) and the CV_8UC1 mask
+// of its finite pixels (255).
+void SplitKnown(const cv::Mat& depth, cv::Mat* values, cv::Mat* known) {
+  AVATAR_CHECK_INPUT(!depth.empty() && depth.type() == CV_32FC1) << "a depth map must be CV_32FC1";
+  *values = cv::Mat(depth.size(), CV_32FC1);
+  *known = cv::Mat(depth.size(), CV_8UC1);
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float d = depth.at<float>(y, x);
+      const bool ok = std::isfinite(d);
+      known->at<uchar>(y, x) = ok ? 255 : 0;
+      values->at<float>(y, x) = ok ? d : 0.0f;
+    }
+  }
+}
 
 // Bilinear sample of a finite-or-inf map at continuous pixel position (x, y) (pixel centres at
 // i + 0.5); +inf when any of the four neighbours is not finite or the point is outside.
@@ -40,23 +58,20 @@ void DepthDetailOptions::Validate() const {
   AVATAR_CHECK_OPTION(min_alpha >= 0 && min_alpha <= 255) << "the depth-detail alpha threshold must be 0..255";
   AVATAR_CHECK_OPTION(std::isfinite(min_matte) && min_matte >= 0.0f && min_matte <= 1.0f)
       << "the depth-detail matte threshold must be in [0, 1], got " << min_matte;
+  AVATAR_CHECK_OPTION(std::isfinite(outline_matte) && outline_matte > 0.0f && outline_matte <= min_matte)
+      << "the outline's matte threshold must be in (0, min_matte], got " << outline_matte;
   AVATAR_CHECK_OPTION(std::isfinite(depth_smoothing) && depth_smoothing >= 0.0 && depth_smoothing <= 0.25)
       << "the depth smoothing must be in [0, 0.25], got " << depth_smoothing;
   AVATAR_CHECK_OPTION(std::isfinite(feather) && feather >= 0.0 && feather <= 0.25)
       << "the depth-detail feather must be in [0, 0.25], got " << feather;
+  AVATAR_CHECK_OPTION(std::isfinite(carve_matte) && carve_matte <= 1.0f)
+      << "the carve threshold must be at most 1 (< 0 = off), got " << carve_matte;
 }
 
 cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing) {
-  AVATAR_CHECK_INPUT(!depth.empty() && depth.type() == CV_32FC1) << "a depth map must be CV_32FC1";
-  cv::Mat known(depth.size(), CV_32FC1), value(depth.size(), CV_32FC1);
-  for (int y = 0; y < depth.rows; ++y) {
-    for (int x = 0; x < depth.cols; ++x) {
-      const float d = depth.at<float>(y, x);
-      const bool ok = std::isfinite(d);
-      known.at<float>(y, x) = ok ? 1.0f : 0.0f;
-      value.at<float>(y, x) = ok ? d : 0.0f;
-    }
-  }
+  cv::Mat value, known8, known;
+  SplitKnown(depth, &value, &known8);
+  known8.convertTo(known, CV_32FC1, 1.0 / 255.0);
   const double sigma = smoothing * depth.rows;
   if (sigma >= 0.3) {
     // Normalised convolution: the finite values spread over the gaps between them.
@@ -73,6 +88,15 @@ cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing) {
   return out;
 }
 
+cv::Mat FillGaps(const cv::Mat& depth) {
+  cv::Mat values, known;
+  SplitKnown(depth, &values, &known);
+  if (cv::countNonZero(known) == 0) return cv::Mat(depth.size(), CV_32FC1, cv::Scalar(kInf));
+  cv::Mat filled = PushPullFill(values, known);
+  values.copyTo(filled, known);  // the known values exactly
+  return filled;
+}
+
 DepthDetail::DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const DepthDetailOptions& options)
     : photo_(std::move(photo)), matte_(std::move(matte)), source_(std::move(source)), options_(options) {
   options_.Validate();
@@ -85,6 +109,43 @@ DepthDetail::DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const D
   morphable::PinholeCamera::FromLabel(source_.camera);  // throws for a bad camera
   source_.depth = SmoothDepth(source_.depth, options_.depth_smoothing);
   AVATAR_CHECK_INPUT(cv::countNonZero(source_.depth < kInf) > 0) << "the source-view depth is empty (no opaque pixel)";
+  filled_ = FillGaps(source_.depth);
+}
+
+cv::Mat DepthDetail::SplatPerson(const morphable::PinholeCamera& camera, cv::Size size) const {
+  // The person on a grid of the source view as fine as the target, one point per grid pixel; each
+  // point covers its pixel's neighbours too, so that a turned surface shows no pinholes.
+  const int side = std::max(size.width, size.height);
+  const cv::Size grid(side, std::max(1, static_cast<int>(std::lround(static_cast<double>(side) * photo_.rows /
+                                                                      photo_.cols))));
+  cv::Mat depth, matte;
+  cv::resize(filled_, depth, grid, 0, 0, cv::INTER_LINEAR);
+  cv::resize(matte_, matte, grid, 0, 0, grid.width < photo_.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
+  const morphable::PinholeCamera scam = morphable::PinholeCamera::FromLabel(source_.camera);
+  const PixelRays rays(scam);
+  cv::Mat z(size, CV_32FC1, cv::Scalar(kInf));
+  constexpr int kHalf = 1;
+  for (int y = 0; y < grid.height; ++y) {
+    for (int x = 0; x < grid.width; ++x) {
+      if (matte.at<float>(y, x) < options_.outline_matte) continue;
+      const float d = depth.at<float>(y, x);
+      if (!std::isfinite(d) || d <= 0.0f) continue;
+      const cv::Vec3d world = rays.Point(x, y, grid, d);
+      const cv::Vec3d p = camera.ToCamera(world);
+      if (!(p[2] > 1e-6)) continue;
+      const cv::Point2d px = camera.ToPixel(p, size);
+      if (!(std::abs(px.x) < 1e6 && std::abs(px.y) < 1e6)) continue;
+      const int cx = static_cast<int>(std::floor(px.x)), cy = static_cast<int>(std::floor(px.y));
+      const float dist = static_cast<float>(cv::norm(world - camera.centre));
+      for (int yy = std::max(0, cy - kHalf); yy <= std::min(size.height - 1, cy + kHalf); ++yy) {
+        for (int xx = std::max(0, cx - kHalf); xx <= std::min(size.width - 1, cx + kHalf); ++xx) {
+          float& cell = z.at<float>(yy, xx);
+          cell = std::min(cell, dist);
+        }
+      }
+    }
+  }
+  return z;
 }
 
 FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const {
@@ -94,19 +155,39 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
   const cv::Size size = target.depth.size();
   const morphable::PinholeCamera tcam = morphable::PinholeCamera::FromLabel(target.camera);
   const morphable::PinholeCamera scam = morphable::PinholeCamera::FromLabel(source_.camera);
-  const cv::Mat depth = SmoothDepth(target.depth, options_.depth_smoothing);
+  // Opaque: where the network is, or where the photo's person lands (extend_to_matte).
+  cv::Mat opaque = alpha >= options_.min_alpha;
+  cv::Mat depth;
+  if (options_.extend_to_matte) {
+    const cv::Mat splat = SplatPerson(tcam, size);
+    cv::Mat combined = target.depth.clone();
+    for (int y = 0; y < size.height; ++y) {
+      for (int x = 0; x < size.width; ++x) {
+        if (opaque.at<uchar>(y, x) != 0) continue;
+        const float s = splat.at<float>(y, x);
+        combined.at<float>(y, x) = s;
+        if (std::isfinite(s)) opaque.at<uchar>(y, x) = 255;
+      }
+    }
+    depth = SmoothDepth(combined, options_.depth_smoothing);
+  } else {
+    depth = SmoothDepth(target.depth, options_.depth_smoothing);
+  }
+  const cv::Mat& seen_depth = options_.extend_to_matte ? filled_ : source_.depth;
   const PixelRays rays(tcam);
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
   const double sx_scale = static_cast<double>(source_.depth.cols) / photo_.cols;
   const double sy_scale = static_cast<double>(source_.depth.rows) / photo_.rows;
 
   cv::Mat map_x(size, CV_32FC1, cv::Scalar(-1.0f)), map_y(size, CV_32FC1, cv::Scalar(-1.0f));
+  cv::Mat coverage(size, CV_32FC1, cv::Scalar(1.0f));
   FaceWarp out;
   out.valid = cv::Mat::zeros(size, CV_8UC1);
   out.face = cv::Mat::zeros(size, CV_8UC1);
+  cv::Mat carved = cv::Mat::zeros(size, CV_8UC1);
   for (int y = 0; y < size.height; ++y) {
     for (int x = 0; x < size.width; ++x) {
-      if (alpha.at<uchar>(y, x) < options_.min_alpha) continue;
+      if (opaque.at<uchar>(y, x) == 0) continue;
       out.face.at<uchar>(y, x) = 255;
       const float t = depth.at<float>(y, x);
       if (!std::isfinite(t) || t <= 0.0f) continue;
@@ -116,15 +197,32 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
       const cv::Point2d px = scam.ToPixel(p, photo_.size());
       const int ix = static_cast<int>(std::floor(px.x)), iy = static_cast<int>(std::floor(px.y));
       if (ix < 0 || iy < 0 || ix >= photo_.cols || iy >= photo_.rows) continue;
-      const float seen = SampleDepth(source_.depth, px.x * sx_scale, px.y * sy_scale);
+      const bool network = alpha.at<uchar>(y, x) >= options_.min_alpha;
+      if (network && matte_.at<float>(iy, ix) < options_.carve_matte) {
+        carved.at<uchar>(y, x) = 255;  // the photo saw empty space through this point
+        continue;
+      }
+      if (!network) coverage.at<float>(y, x) = SampleDepth(matte_, px.x, px.y);
+      const float seen = SampleDepth(seen_depth, px.x * sx_scale, px.y * sy_scale);
       if (!std::isfinite(seen) || cv::norm(world - scam.centre) > seen + tolerance) continue;  // hidden
-      if (matte_.at<float>(iy, ix) < options_.min_matte) continue;                             // background
+      if (matte_.at<float>(iy, ix) < (network ? options_.min_matte : options_.outline_matte)) continue;  // background
       map_x.at<float>(y, x) = static_cast<float>(px.x);
       map_y.at<float>(y, x) = static_cast<float>(px.y);
       out.valid.at<uchar>(y, x) = 255;
     }
   }
-  return WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
+  // A pixel the photo's person alone made opaque is the person only where the photo shows it
+  // (the splat's footprint reaches a pixel beyond the matte).
+  if (options_.extend_to_matte) out.face.setTo(0, (alpha < options_.min_alpha) & (out.valid == 0));
+  // Beyond the opaque region lies nothing to blend with: the person's outline stays the photo's.
+  const cv::Mat open = out.face == 0;
+  FaceWarp warp = WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather, open);
+  // The photo's soft outline where nothing of the network lies beneath.
+  cv::min(coverage, 1.0f, coverage);
+  cv::max(coverage, 0.0f, coverage);
+  warp.weight = warp.weight.mul(coverage);
+  warp.carved = std::move(carved);
+  return warp;
 }
 
 }  // namespace avatar::compose

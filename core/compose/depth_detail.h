@@ -6,6 +6,13 @@
 // the source camera within a tolerance of the network's source-view depth) and it belongs to the
 // person (matte). Both depth maps are smoothed first (the volume render is 32 px with the bundled
 // model: its depth upsampled by nearest neighbour would warp in blocks).
+//
+// The network's silhouette is not the person's: its opacity fades on the shoulders, the neck and
+// stray hair that the photo's matte keeps. So the proxy is the photo's whole person: the source
+// depth is filled over the matte from the network's depth around it (push-pull), and the person's
+// pixels, lifted with it, are splatted into the target view (z-buffered); a target pixel that the
+// network leaves transparent but the splat covers is opaque with the splat's depth. At the source
+// view this gives the matted photo back.
 
 #include <opencv2/core.hpp>
 
@@ -22,10 +29,19 @@ struct DepthDetailOptions {
   int min_alpha = 128;
   // Matte value below which a photo pixel is background.
   float min_matte = 0.5f;
+  // Beyond the network's silhouette (extend_to_matte): matte value down to which the photo's
+  // outline is carried, weighted by the matte, so that the frame keeps the photo's soft edge.
+  float outline_matte = 0.02f;
   // Smoothing of both depth maps (Gaussian sigma) as a fraction of the map's height.
   double depth_smoothing = 0.02;
   // Feather width of the warp's edge, as a fraction of the output height.
   double feather = 0.015;
+  // Whether the photo's person beyond the network's silhouette is part of the proxy (see above).
+  bool extend_to_matte = true;
+  // Matte value below which a photo pixel is surely background: a pixel the network renders
+  // opaque whose surface point the photo sees against such a pixel lies in empty space (the
+  // photo's ray through it met no person), so the frame clears it (FaceWarp::carved). < 0: off.
+  float carve_matte = 0.25f;
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -46,14 +62,22 @@ class DepthDetail {
   DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const DepthDetailOptions& options = {});
 
   // The photo warped to `target.camera` through `target.depth`, at the target depth's size,
-  // where `alpha` (CV_8UC1, same size) is opaque. `face` of the result marks the opaque pixels.
+  // where `alpha` (CV_8UC1, same size) is opaque and, with extend_to_matte, where the photo's
+  // person lands. `face` of the result marks those pixels; beyond the network's silhouette the
+  // weight is the photo's matte (its soft outline); `carved` marks the network's opaque pixels
+  // that the photo shows as empty space (carve_matte).
   // Outputs finite; all invalid when nothing is opaque or the depth is empty.
   FaceWarp Warp(const ViewDepth& target, const cv::Mat& alpha) const;
 
  private:
+  // The photo's person splatted into `size` at `camera`: CV_32FC1 distance from the camera
+  // (+inf where nothing lands).
+  cv::Mat SplatPerson(const morphable::PinholeCamera& camera, cv::Size size) const;
+
   cv::Mat photo_;
   cv::Mat matte_;
-  ViewDepth source_;  // depth smoothed
+  ViewDepth source_;   // depth smoothed
+  cv::Mat filled_;     // CV_32FC1 the smoothed source depth with every gap filled (push-pull)
   DepthDetailOptions options_;
 };
 
@@ -77,5 +101,10 @@ class PixelRays {
 // Non-finite depth filled from its finite neighbours and smoothed (sigma = `smoothing` x height);
 // pixels with no finite value within reach stay +inf. For tests and the warp.
 cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing);
+
+// Every non-finite pixel of a CV_32FC1 map filled from the finite ones (push-pull over an image
+// pyramid: the nearer values weigh more); finite pixels keep their value. All +inf when no pixel
+// is finite.
+cv::Mat FillGaps(const cv::Mat& depth);
 
 }  // namespace avatar::compose

@@ -39,6 +39,8 @@ void FaceDetailOptions::Validate() const {
       << "the eye/mouth motion threshold must be a finite number >= 0, got " << eye_mouth_motion;
   AVATAR_CHECK_OPTION(std::isfinite(closed_eye_ratio) && closed_eye_ratio >= 0.0 && closed_eye_ratio < 1.0)
       << "the closed-eye ratio must be in [0, 1), got " << closed_eye_ratio;
+  AVATAR_CHECK_OPTION(std::isfinite(mouth_cavity_shade) && mouth_cavity_shade <= 1.0)
+      << "the mouth cavity shade must be at most 1 (< 0 = off), got " << mouth_cavity_shade;
   AVATAR_CHECK_OPTION(changed_eye_mouth == "network" || changed_eye_mouth == "mesh")
       << "a changed eye or mouth comes from 'network' or 'mesh', got '" << changed_eye_mouth << "'";
 }
@@ -81,6 +83,19 @@ FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitRes
   std::vector<morphable::ScreenVertex> screen;
   Project(cam, source_world_, photo_.size(), &camera_points, &screen);
   source_depth_ = morphable::Rasterize(screen, model_.topology().triangles, photo_.size()).depth;
+  {
+    // The lips of the photo (between the outer and the inner lip line of the fitted mesh) give the
+    // colour of the mouth's interior; a neutral dark red when the lips are out of the picture.
+    std::vector<cv::Point> outer, inner;
+    for (const int v : face::mesh_index::LipsOuter()) outer.emplace_back(cvRound(screen[v].x), cvRound(screen[v].y));
+    for (const int v : face::mesh_index::LipsInner()) inner.emplace_back(cvRound(screen[v].x), cvRound(screen[v].y));
+    cv::Mat lips = cv::Mat::zeros(photo_.size(), CV_8UC1);
+    cv::fillPoly(lips, std::vector<std::vector<cv::Point>>{outer}, cv::Scalar(255));
+    cv::fillPoly(lips, std::vector<std::vector<cv::Point>>{inner}, cv::Scalar(0));
+    const cv::Scalar lip = cv::countNonZero(lips) > 0 ? cv::mean(photo_, lips) : cv::Scalar(60, 60, 150);
+    const double shade = std::max(0.0, options_.mouth_cavity_shade);
+    for (int c = 0; c < 3; ++c) cavity_colour_[c] = cv::saturate_cast<uchar>(lip[c] * shade);
+  }
   if (photo_landmarks.size() == screen.size()) {
     std::vector<cv::Point2d> points;
     for (const cv::Point3f& p : photo_landmarks) points.emplace_back(p.x, p.y);
@@ -102,7 +117,12 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   std::vector<morphable::ScreenVertex> target_screen;
   Project(target_cam, target_world, size, &target_points, &target_screen);
   const morphable::RasterBuffers raster = morphable::Rasterize(target_screen, model_.topology().triangles, size);
-  const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, size);
+  cv::Mat mouth_opening;
+  const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, size, &mouth_opening);
+  // The mouth's interior: inside the changed mouth's inner lip line, where the mesh only stretches
+  // the photo's closed lips.
+  cv::Mat cavity = cv::Mat::zeros(size, CV_8UC1);
+  if (options_.mouth_cavity_shade >= 0.0) cavity.setTo(255, mouth_opening);
 
   const auto& triangles = model_.topology().triangles;
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
@@ -139,8 +159,10 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
     }
   }
   FaceWarp warp = WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
+  warp.cavity_bgr = cavity_colour_;
   warp.eye_mouth = std::move(eye_mouth);
   warp.changed = changed;
+  warp.cavity = std::move(cavity);
   return warp;
 }
 
@@ -154,9 +176,10 @@ double FaceDetail::EyeMouthMotion(const std::vector<cv::Point3f>& target_world, 
 }
 
 cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
-                                    const std::vector<morphable::ScreenVertex>& target_screen,
-                                    cv::Size size) const {
+                                    const std::vector<morphable::ScreenVertex>& target_screen, cv::Size size,
+                                    cv::Mat* mouth_opening) const {
   cv::Mat changed = cv::Mat::zeros(size, CV_8UC1);
+  if (mouth_opening != nullptr) *mouth_opening = cv::Mat::zeros(size, CV_8UC1);
   std::vector<std::vector<cv::Point>> polys;
   // "mesh": the openings only (inside the lid margin, inside the inner lip line), which the mesh
   // spans with stretched lids and lips; "network": the whole eye (lid margin) and mouth (outer lip
@@ -179,7 +202,10 @@ cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world
                  std::abs(p.y) < 1e6;
       poly.emplace_back(cvRound(p.x * 16), cvRound(p.y * 16));
     }
-    if (in_front) polys.push_back(std::move(poly));
+    if (!in_front) continue;
+    if (r == 2 && openings && mouth_opening != nullptr)
+      cv::fillPoly(*mouth_opening, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255), cv::LINE_8, 4);
+    polys.push_back(std::move(poly));
   }
   if (polys.empty()) return changed;
   cv::fillPoly(changed, polys, cv::Scalar(255), cv::LINE_8, 4);  // 4 fractional bits
@@ -192,7 +218,7 @@ cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world
 }
 
 FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,
-                      double feather) {
+                      double feather, const cv::Mat& open) {
   AVATAR_CHECK_INPUT(map_x.type() == CV_32FC1 && map_y.type() == CV_32FC1 && map_x.size() == valid.size() &&
                      map_y.size() == valid.size() && valid.type() == CV_8UC1)
       << "detail: the warp maps must be CV_32FC1 of the valid mask's size";
@@ -201,22 +227,31 @@ FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat&
   cv::Mat mx = map_x - 0.5f, my = map_y - 0.5f;
   cv::remap(photo, out.bgr, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
   out.bgr.setTo(cv::Scalar::all(0), valid == 0);
-  out.weight = FeatheredWeight(valid, feather);
+  out.weight = FeatheredWeight(valid, feather, open);
   out.valid = std::move(valid);
   out.face = std::move(face);
   return out;
 }
 
-cv::Mat FeatheredWeight(const cv::Mat& valid, double feather) {
+cv::Mat FeatheredWeight(const cv::Mat& valid, double feather, const cv::Mat& open) {
   AVATAR_CHECK_INPUT(!valid.empty() && valid.type() == CV_8UC1) << "detail: the valid mask must be CV_8UC1";
+  AVATAR_CHECK_INPUT(open.empty() || (open.type() == CV_8UC1 && open.size() == valid.size()))
+      << "detail: the open mask must be CV_8UC1 of the valid mask's size";
   // Feather inwards: the weight reaches 1 a feather width inside the valid region, so the seam
   // with the frame below is soft and never shows the invalid (black) pixels.
   cv::Mat valid_f, weight;
   valid.convertTo(valid_f, CV_32FC1, 1.0 / 255.0);
   const int radius = static_cast<int>(std::lround(feather * valid.rows));
   if (radius >= 1) {
-    cv::Mat eroded;
-    cv::erode(valid_f, eroded, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)));
+    cv::Mat eroded, reach;
+    if (open.empty()) {
+      reach = valid_f;
+    } else {
+      cv::Mat open_f;
+      open.convertTo(open_f, CV_32FC1, 1.0 / 255.0);
+      cv::max(valid_f, open_f, reach);  // a new matrix: valid_f stays the mask
+    }
+    cv::erode(reach, eroded, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)));
     cv::GaussianBlur(eroded, weight, cv::Size(0, 0), radius / 2.0 + 0.5);
     weight = weight.mul(valid_f);
   } else {
@@ -261,6 +296,51 @@ cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha) {
     cv::max(*alpha, warp_alpha, *alpha);
   }
   return out;
+}
+
+cv::Mat PaintCavity(const cv::Mat& frame, const FaceWarp& warp) {
+  AVATAR_CHECK_INPUT(!frame.empty() && frame.type() == CV_8UC3) << "detail: the frame must be BGR8";
+  if (warp.cavity.empty() || cv::countNonZero(warp.cavity) == 0) return frame;
+  AVATAR_CHECK_INPUT(warp.cavity.type() == CV_8UC1 && warp.cavity.size() == frame.size())
+      << "detail: the cavity must be CV_8UC1 of the frame's size";
+  cv::Mat weight;
+  warp.cavity.convertTo(weight, CV_32FC1, 1.0 / 255.0);
+  cv::GaussianBlur(weight, weight, cv::Size(3, 3), 0.0);
+  weight.setTo(1.0f, warp.cavity);  // the cavity itself fully
+  FaceWarp layer;
+  layer.bgr = cv::Mat(frame.size(), CV_8UC3, cv::Scalar(warp.cavity_bgr[0], warp.cavity_bgr[1], warp.cavity_bgr[2]));
+  layer.weight = weight;
+  return Composite(frame, layer);
+}
+
+void ClearCarved(const FaceWarp& warp, cv::Mat* bgr, cv::Mat* alpha, cv::Mat* depth) {
+  if (warp.carved.empty() || cv::countNonZero(warp.carved) == 0) return;
+  AVATAR_CHECK_INPUT(warp.carved.type() == CV_8UC1) << "detail: the carved mask must be CV_8UC1";
+  const cv::Size size = warp.carved.size();
+  cv::Mat keep;
+  warp.carved.convertTo(keep, CV_32FC1, 1.0 / 255.0);
+  cv::GaussianBlur(keep, keep, cv::Size(3, 3), 0.0);
+  keep.setTo(1.0f, warp.carved);
+  keep = 1.0 - keep;
+  if (bgr != nullptr && !bgr->empty()) {
+    AVATAR_CHECK_INPUT(bgr->type() == CV_8UC3 && bgr->size() == size) << "detail: the frame must be BGR8 of the mask's size";
+    cv::Mat f, keep3;
+    bgr->convertTo(f, CV_32FC3);
+    cv::cvtColor(keep, keep3, cv::COLOR_GRAY2BGR);
+    f = f.mul(keep3);
+    f.convertTo(*bgr, CV_8UC3);
+  }
+  if (alpha != nullptr && !alpha->empty()) {
+    AVATAR_CHECK_INPUT(alpha->type() == CV_8UC1 && alpha->size() == size) << "detail: alpha must be CV_8UC1 of the mask's size";
+    cv::Mat f;
+    alpha->convertTo(f, CV_32FC1);
+    f = f.mul(keep);
+    f.convertTo(*alpha, CV_8UC1);
+  }
+  if (depth != nullptr && !depth->empty()) {
+    AVATAR_CHECK_INPUT(depth->type() == CV_32FC1 && depth->size() == size) << "detail: depth must be CV_32FC1 of the mask's size";
+    depth->setTo(std::numeric_limits<float>::infinity(), warp.carved);
+  }
 }
 
 }  // namespace avatar::compose

@@ -42,6 +42,11 @@ struct FaceDetailOptions {
   // (the same ratio on the target mesh above it) its opening comes from the base frame too, even
   // when the fit did not register the blink. Open eyes measure 0.25-0.35.
   double closed_eye_ratio = 0.12;
+  // With "mesh", a changed mouth's opening where the mesh has its hole (between the inner lip
+  // lines) shows the mouth's dark interior - the photo's lip colour times this shade - rather than
+  // the base frame, whose own mouth may not open (the bundled network's does not). < 0 leaves it to
+  // the base frame.
+  double mouth_cavity_shade = 0.3;
 
   // Throws InvalidOptions.
   void Validate() const;
@@ -59,6 +64,13 @@ struct FaceWarp {
   // [H,W] CV_8UC1 255 on the target's eyes and mouth where they changed with the expression: no
   // layer of the photo may draw there (ExcludeRegion); empty for warps without a face mesh.
   cv::Mat changed;
+  // [H,W] CV_8UC1 255 on the opened mouth's interior (inside the changed inner lip line), which
+  // no photo pixel shows: PaintCavity draws it in `cavity_bgr`; empty for warps without a face mesh.
+  cv::Mat cavity;
+  cv::Vec3b cavity_bgr{0, 0, 0};
+  // [H,W] CV_8UC1 255 where the frame below is opaque but the photo shows empty space there
+  // (DepthDetail only; ClearCarved removes it); empty for other warps.
+  cv::Mat carved;
 };
 
 class FaceDetail {
@@ -88,8 +100,10 @@ class FaceDetail {
   double EyeMouthMotion(const std::vector<cv::Point3f>& target_world, const std::vector<int>& region) const;
 
  private:
+  // `mouth` (may be null) gets the changed mouth's opening alone (mode "mesh"; zeros otherwise).
   cv::Mat ChangedEyeMouth(const std::vector<cv::Point3f>& target_world,
-                          const std::vector<morphable::ScreenVertex>& target_screen, cv::Size size) const;
+                          const std::vector<morphable::ScreenVertex>& target_screen, cv::Size size,
+                          cv::Mat* mouth = nullptr) const;
 
   const morphable::MorphableModel& model_;
   morphable::FitResult fit_;
@@ -100,6 +114,7 @@ class FaceDetail {
   std::vector<cv::Point3f> source_world_;  // mesh at the source expression, world
   cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
   bool eye_closed_[2] = {false, false};    // the photo's right and left eye
+  cv::Vec3b cavity_colour_{0, 0, 0};       // BGR of the mouth's interior
 };
 
 // Lid gap over eye width of the subject's right (0) or left (1) eye from facemesh-ordered points
@@ -108,18 +123,28 @@ double EyeOpenRatio(const std::vector<cv::Point2d>& points, int eye);
 
 // The warp of `photo` by per-pixel source positions (map_x, map_y: photo pixels, centres at
 // i + 0.5; anything where `valid` is 0): one bilinear lookup, black outside `valid`, and the
-// feathered weight. `face` is passed through.
+// feathered weight (see FeatheredWeight for `open`). `face` is passed through.
 FaceWarp WarpFromMaps(const cv::Mat& photo, const cv::Mat& map_x, const cv::Mat& map_y, cv::Mat valid, cv::Mat face,
-                      double feather);
+                      double feather, const cv::Mat& open = cv::Mat());
 
 // The blend weight of a valid mask (CV_8UC1, 255 = valid): 0 outside, rising to 1 over
-// `feather` x height inside (CV_32FC1 in [0,1]).
-cv::Mat FeatheredWeight(const cv::Mat& valid, double feather);
+// `feather` x height inside (CV_32FC1 in [0,1]). Pixels of `open` (CV_8UC1, may be empty: none)
+// have nothing beneath them to blend with (the background beyond the person's silhouette), so the
+// weight does not fade towards them: the photo's own outline stays sharp.
+cv::Mat FeatheredWeight(const cv::Mat& valid, double feather, const cv::Mat& open = cv::Mat());
 
 // Blends `warp` over `base` (CV_8UC3 of the same size): base where weight is 0, the warped photo
 // where it is 1. Returns the composite; `alpha` (CV_8UC1, may be empty) gets at least the warp's
 // weight where the face covers.
 cv::Mat Composite(const cv::Mat& base, const FaceWarp& warp, cv::Mat* alpha = nullptr);
+
+// `frame` (CV_8UC3 of the warp's size) with the warp's mouth interior painted in its colour, the
+// edge softened by a pixel; the frame itself where the warp has no cavity.
+cv::Mat PaintCavity(const cv::Mat& frame, const FaceWarp& warp);
+
+// Clears the warp's carved pixels from a frame (BGR8 to black, alpha to 0, depth to +inf; each may
+// be empty), their edge softened by a pixel. Nothing changes when the warp carved nothing.
+void ClearCarved(const FaceWarp& warp, cv::Mat* bgr, cv::Mat* alpha, cv::Mat* depth);
 
 // Removes `region` (CV_8UC1, 255 = excluded; empty = nothing) from a warp: not valid there, and
 // its weight fades to 0 over `feather` x height towards the region, so the frame below shows

@@ -6,6 +6,7 @@
 
 #include "core/morphable/rasterizer.h"
 #include "core/util/error.h"
+#include "core/util/push_pull.h"
 
 namespace avatar::morphable {
 
@@ -16,47 +17,6 @@ namespace {
 cv::Vec3f PhotoColour(const cv::Mat& bgr64, double x, double y) {
   const cv::Vec3d v = SampleBilinear<cv::Vec3d>(bgr64, x - 0.5, y - 0.5);
   return {static_cast<float>(v[0] / 255.0), static_cast<float>(v[1] / 255.0), static_cast<float>(v[2] / 255.0)};
-}
-
-// Fills unknown texels from known ones by a push-pull pyramid (smooth, no extra dependency).
-cv::Mat PushPullFill(const cv::Mat& colour, const cv::Mat& known) {
-  cv::Mat w;
-  known.convertTo(w, CV_32FC1, 1.0 / 255.0);
-  std::vector<cv::Mat> c_levels(1);
-  std::vector<cv::Mat> w_levels{w};
-  cv::Mat w3;
-  cv::merge(std::vector<cv::Mat>{w, w, w}, w3);
-  c_levels[0] = colour.mul(w3);
-  while (c_levels.back().cols > 1 && c_levels.back().rows > 1) {
-    cv::Mat c, ww;
-    const cv::Size half((c_levels.back().cols + 1) / 2, (c_levels.back().rows + 1) / 2);
-    cv::resize(c_levels.back(), c, half, 0, 0, cv::INTER_AREA);
-    cv::resize(w_levels.back(), ww, half, 0, 0, cv::INTER_AREA);
-    c_levels.push_back(c);
-    w_levels.push_back(ww);
-  }
-  // Pull: normalise from the coarsest level up, blending each level's own data with the coarser estimate.
-  cv::Mat estimate;
-  for (int l = static_cast<int>(c_levels.size()) - 1; l >= 0; --l) {
-    cv::Mat wl = cv::min(w_levels[l] * 4.0, 1.0);  // confidence of this level's own average
-    cv::Mat own(c_levels[l].size(), CV_32FC3);
-    for (int y = 0; y < own.rows; ++y) {
-      for (int x = 0; x < own.cols; ++x) {
-        const float ww = w_levels[l].at<float>(y, x);
-        own.at<cv::Vec3f>(y, x) = ww > 1e-6f ? c_levels[l].at<cv::Vec3f>(y, x) / ww : cv::Vec3f(0, 0, 0);
-      }
-    }
-    if (estimate.empty()) {
-      estimate = own;
-      continue;
-    }
-    cv::Mat up;
-    cv::resize(estimate, up, own.size(), 0, 0, cv::INTER_LINEAR);
-    cv::Mat wl3;
-    cv::merge(std::vector<cv::Mat>{wl, wl, wl}, wl3);
-    estimate = own.mul(wl3) + up.mul(cv::Scalar::all(1.0) - wl3);
-  }
-  return estimate;
 }
 
 }  // namespace

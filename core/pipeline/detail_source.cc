@@ -156,6 +156,7 @@ DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunCon
   if (depth_ != nullptr) {
     compose::FaceWarp depth = DepthWarp(request, frame);
     compose::ExcludeRegion(&depth, warp.changed, options_.face.feather);
+    compose::ClearCarved(depth, &frame.bgr, &frame.alpha, &frame.depth);
     frame.bgr = compose::Composite(frame.bgr, depth, &frame.alpha);
     layers.depth_weight = depth.weight;
   } else {
@@ -174,6 +175,7 @@ DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunCon
     frame.bgr = compose::Composite(frame.bgr, fill, &frame.alpha);
   }
   frame.bgr = compose::Composite(frame.bgr, warp, &frame.alpha);
+  frame.bgr = compose::PaintCavity(frame.bgr, warp);
   layers.face_weight = warp.weight;
   layers.face = warp.face;
   layers.eye_mouth = warp.eye_mouth;

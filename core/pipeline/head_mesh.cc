@@ -99,6 +99,7 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
   cv::Mat depth = frame.depth.clone();
   depth.setTo(std::numeric_limits<float>::infinity(), frame.alpha < 128);
   depth = compose::SmoothDepth(depth, options.depth_smoothing);
+  if (options.extend_to_matte) depth = compose::FillGaps(depth);
   // Where the face mesh covers the photo's view (eroded by a pixel so that the two parts meet).
   std::vector<morphable::ScreenVertex> screen(face.positions.size());
   for (size_t i = 0; i < face.positions.size(); ++i) {
@@ -124,7 +125,7 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
   for (int y = 0; y < n; ++y) {
     for (int x = 0; x < n; ++x) {
       const float t = depth.at<float>(y, x);
-      if (!std::isfinite(t) || t <= 0.0f || frame.alpha.at<uchar>(y, x) < 128 ||
+      if (!std::isfinite(t) || t <= 0.0f || (!options.extend_to_matte && frame.alpha.at<uchar>(y, x) < 128) ||
           matte.at<float>(y, x) < options.min_matte)
         continue;
       const cv::Vec3d p = rays.Point(x, y, size, t);

@@ -31,6 +31,10 @@ struct HeadMeshOptions {
   double max_depth_step = 0.03;
   // Matte value below which a photo pixel is background (no height field there).
   float min_matte = 0.5f;
+  // Whether the height field covers the photo's whole person (the depth filled beyond the
+  // network's silhouette, as the detail path's proxy does: compose::DepthDetailOptions) or only
+  // where the network is opaque.
+  bool extend_to_matte = true;
   // Side of the face part's UV texture (the fit's texture is resampled to it).
   int face_texture_size = 512;
 
@@ -38,6 +42,7 @@ struct HeadMeshOptions {
   void Visit(V&& v) {
     v("depth_size", depth_size, "Side of the source-view depth the head's height field is built on");
     v("max_depth_step", max_depth_step, "Largest depth step inside a triangle (fraction of the camera distance)");
+    v("extend_to_matte", extend_to_matte, "Cover the photo's whole person, not only the network's opaque pixels");
     v("face_texture_size", face_texture_size, "Side of the face's UV texture");
   }
   // Throws InvalidOptions.

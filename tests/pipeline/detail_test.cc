@@ -185,7 +185,14 @@ TEST_F(Detail, ChangedEyesAndMouthComeFromTheBaseFrame) {
     cv::Mat diff;
     cv::absdiff(layers.frame.bgr, layers.network, diff);
     cv::cvtColor(diff, diff, cv::COLOR_BGR2GRAY);
-    EXPECT_EQ(cv::countNonZero(diff & w.changed), 0) << "a layer of the photo drew a changed eye or mouth";
+    // The opened mouth's interior is painted (AnOpenedMouthShowsADarkInterior), not the photo's.
+    cv::Mat drawn = diff & w.changed;
+    if (!w.cavity.empty()) {
+      cv::Mat near_cavity;
+      cv::dilate(w.cavity, near_cavity, cv::Mat::ones(3, 3, CV_8UC1));
+      drawn.setTo(0, near_cavity);
+    }
+    EXPECT_EQ(cv::countNonZero(drawn), 0) << "a layer of the photo drew a changed eye or mouth";
     EXPECT_TRUE(cv::checkRange(layers.frame.bgr));
   }
   // One blink changes one eye: the two eyes lie on either side of the face's centre column.
@@ -304,6 +311,124 @@ TEST_F(Detail, SmoothDepthFillsHolesOfAConstantSurfaceAndKeepsEmptyEmpty) {
   const cv::Mat empty = compose::SmoothDepth(cv::Mat(16, 16, CV_32FC1, cv::Scalar(inf)), 0.05);
   EXPECT_EQ(cv::countNonZero(empty < inf), 0);
   EXPECT_THROW(compose::SmoothDepth(cv::Mat(4, 4, CV_8UC1), 0.05), InvalidInput);
+}
+
+// Gap filling of a depth map: known values stay exactly, every gap (NaN included) gets a value,
+// and a gap next to one value takes (nearly) that value; a map with nothing known stays empty.
+TEST_F(Detail, FillGapsKeepsKnownValuesAndFillsEveryGapBetweenThem) {
+  const float inf = std::numeric_limits<float>::infinity();
+  cv::Mat d(48, 64, CV_32FC1, cv::Scalar(inf));
+  d(cv::Rect(0, 0, 16, 48)).setTo(2.0f);   // a near strip on the left
+  d(cv::Rect(56, 0, 8, 48)).setTo(3.0f);   // a far strip on the right
+  d.at<float>(10, 30) = std::nanf("");
+  const cv::Mat f = compose::FillGaps(d);  // the fill itself: util/push_pull_test.cc
+  ASSERT_EQ(f.size(), d.size());
+  EXPECT_TRUE(cv::checkRange(f)) << "every gap (the NaN too) has a value";
+  EXPECT_EQ(f.at<float>(20, 5), 2.0f);
+  EXPECT_EQ(f.at<float>(20, 60), 3.0f);
+  EXPECT_LT(f.at<float>(20, 17), 2.25f) << "a gap beside the near strip";
+  EXPECT_GT(f.at<float>(20, 54), 2.75f) << "a gap beside the far strip";
+  const cv::Mat empty = compose::FillGaps(cv::Mat(8, 8, CV_32FC1, cv::Scalar(inf)));
+  EXPECT_EQ(cv::countNonZero(empty < inf), 0);
+  EXPECT_THROW(compose::FillGaps(cv::Mat(4, 4, CV_8UC1)), InvalidInput);
+}
+
+// The network's silhouette is not the person's: with a base that covers the face only (the
+// morphable preview), the photo's person beyond it (hair, neck, shoulders under the matte) still
+// comes back at the source view through the filled depth; without extend_to_matte only the base's
+// opaque pixels do. Turned by 30 degrees the extended head stays finite and in range.
+TEST_F(Detail, DepthWarpCoversThePersonBeyondTheBasesSilhouette) {
+  const cv::Size size(192, 192);
+  cv::Mat matte, photo;
+  cv::resize(analysis_->portrait.matte, matte, size, 0, 0, cv::INTER_AREA);
+  cv::resize(analysis_->portrait.image_unmatted, photo, size, 0, 0, cv::INTER_AREA);
+  const cv::Mat person = matte >= 0.5f;
+  RunContext ctx;
+  for (const bool extend : {false, true}) {
+    SCOPED_TRACE(extend);
+    DetailOptions options;
+    options.depth.extend_to_matte = extend;
+    const DetailFrameSource source(Base(), *analysis_, options);
+    ASSERT_TRUE(source.HasDepthProxy());
+    FrameRequest request;
+    request.view = source.SourcePose();
+    request.width = size.width;
+    request.height = size.height;
+    const RenderedFrame base = source.base().Render(request, ctx);
+    const compose::FaceWarp w = source.DepthWarp(request, base);
+    ExpectSane(w, size);
+    const cv::Mat beyond = person & (base.alpha < 128);
+    ASSERT_GT(cv::countNonZero(beyond), size.area() / 10) << "the sample's person reaches beyond its face";
+    const double covered = static_cast<double>(cv::countNonZero(w.valid & beyond)) / cv::countNonZero(beyond);
+    std::cout << "[detail] extend_to_matte " << extend << ": " << covered
+              << " of the person beyond the base's silhouette is the photo's\n";
+    if (!extend) {
+      EXPECT_EQ(cv::countNonZero(w.valid & (base.alpha < 128)), 0);
+      continue;
+    }
+    EXPECT_GT(covered, 0.9);
+    // The background of the photo is not the person (a pixel of slack: the test's matte is resampled).
+    cv::Mat near_person;  // down to the outline's matte (DepthDetailOptions::outline_matte)
+    cv::dilate(matte >= options.depth.outline_matte, near_person, cv::Mat::ones(3, 3, CV_8UC1));
+    EXPECT_EQ(cv::countNonZero(w.valid & ~near_person), 0);
+    cv::Mat a, b;
+    w.bgr.copyTo(a, w.valid);
+    photo.copyTo(b, w.valid);
+    EXPECT_GT(cv::PSNR(a, b, 255.0), 28.0);
+    // The whole frame at the source view is (nearly) the matted photo, its soft outline included.
+    const RenderedFrame frame = source.Render(request, ctx);
+    cv::Mat matted, matte3;
+    cv::cvtColor(matte, matte3, cv::COLOR_GRAY2BGR);
+    photo.convertTo(matted, CV_32FC3);
+    matted = matted.mul(matte3);
+    matted.convertTo(matted, CV_8UC3);
+    const double psnr = cv::PSNR(frame.bgr, matted, 255.0);
+    std::cout << "[detail] source view against the matted photo: " << psnr << " dB\n";
+    EXPECT_GT(psnr, 32.0);  // 39.9 dB measured
+    request.view.yaw += 30.0;
+    const RenderedFrame turned = source.base().Render(request, ctx);
+    ExpectSane(source.DepthWarp(request, turned), size);
+  }
+}
+
+// jawOpen on a closed-mouth photo: the opening inside the target's inner lip line shows a dark
+// interior of the photo's lip colour, not the base frame's closed mouth; the shade < 0 leaves it
+// to the base frame.
+TEST_F(Detail, AnOpenedMouthShowsADarkInterior) {
+  const cv::Size size(256, 256);
+  FrameRequest request;
+  request.width = size.width;
+  request.height = size.height;
+  request.expression.controls = {{"jawOpen", 0.9f}};
+  RunContext ctx;
+  for (const double shade : {0.3, -1.0}) {
+    SCOPED_TRACE(shade);
+    DetailOptions options;
+    options.face.mouth_cavity_shade = shade;
+    const DetailFrameSource source(Base(), *analysis_, options);
+    request.view = source.SourcePose();
+    const compose::FaceWarp w = source.Warp(request);
+    ExpectSane(w, size);
+    const int cavity = w.cavity.empty() ? 0 : cv::countNonZero(w.cavity);
+    if (shade < 0) {
+      EXPECT_EQ(cavity, 0);
+      continue;
+    }
+    std::cout << "[detail] jawOpen 0.9: the mouth's interior covers " << cavity << " pixels at 256\n";
+    EXPECT_GT(cavity, 20);
+    EXPECT_EQ(cv::countNonZero(w.cavity & ~w.changed), 0) << "the interior lies in the changed mouth";
+    EXPECT_EQ(cv::countNonZero(w.cavity & w.valid), 0) << "no photo pixel shows the interior";
+    const RenderedFrame frame = source.Render(request, ctx);
+    const cv::Scalar inside = cv::mean(frame.bgr, w.cavity);
+    cv::Mat skin;
+    cv::resize(analysis_->portrait.image_unmatted, skin, size, 0, 0, cv::INTER_AREA);
+    const cv::Scalar face = cv::mean(skin, w.face);
+    for (int c = 0; c < 3; ++c) EXPECT_LT(inside[c], 0.5 * face[c]) << "channel " << c;
+    EXPECT_TRUE(cv::checkRange(frame.bgr));
+  }
+  compose::FaceDetailOptions bad;
+  bad.mouth_cavity_shade = 2.0;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
 }
 
 // A base without depth, or with nothing opaque at the photo's view (empty density), keeps the
@@ -603,6 +728,19 @@ TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
   HeadMeshOptions options;
   options.depth_size = 96;
   RunContext ctx;
+  // The whole person (the default) holds a small head's part and the matte beyond it.
+  const SphereSource small(Base()->SourcePose(), analysis_->morphable_fit.camera, 0.2);
+  const HeadMesh person = BuildHeadMesh(*analysis_, small, options, ctx);
+  options.extend_to_matte = false;
+  const HeadMesh inside_only = BuildHeadMesh(*analysis_, small, options, ctx);
+  ASSERT_EQ(person.parts.size(), 2u);
+  ASSERT_EQ(inside_only.parts.size(), 2u);
+  person.parts[1].Validate();
+  std::cout << "[detail] head part of a small head: " << person.parts[1].positions.size()
+            << " vertices over the person, " << inside_only.parts[1].positions.size() << " inside the head\n";
+  EXPECT_GT(person.parts[1].positions.size(), inside_only.parts[1].positions.size() + 100);
+  for (const cv::Point3f& p : person.parts[1].positions)
+    ASSERT_TRUE(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z));
   const HeadMesh mesh = BuildHeadMesh(*analysis_, sphere, options, ctx);
   ASSERT_EQ(mesh.parts.size(), 2u);
   EXPECT_TRUE(mesh.warnings.empty());
@@ -668,5 +806,61 @@ TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
   EXPECT_THROW(BuildHeadMesh(*analysis_, sphere, bad, ctx), InvalidOptions);
 }
 
+// A network that is opaque far beyond the person (a large sphere: the bundled model's fog): the
+// pixels whose surface point the photo sees against its background are cleared from the frame,
+// the person's are not; carve_matte < 0 keeps the fog. Turned, the frame stays finite.
+TEST_F(Detail, TheNetworksFogOutsideThePersonIsCarved) {
+  const cv::Size size(160, 160);
+  const auto fog = std::make_shared<SphereSource>(Base()->SourcePose(), analysis_->morphable_fit.camera, 1.2);
+  cv::Mat matte;
+  cv::resize(analysis_->portrait.matte, matte, size, 0, 0, cv::INTER_AREA);
+  // A pixel of slack on either side: the test's matte is resampled.
+  cv::Mat person = matte >= 0.5f, background = matte < 0.25f;
+  cv::erode(person, person, cv::Mat::ones(3, 3, CV_8UC1));
+  cv::erode(background, background, cv::Mat::ones(3, 3, CV_8UC1));
+  ASSERT_GT(cv::countNonZero(background), size.area() / 10) << "the sample has background";
+  RunContext ctx;
+  for (const float carve : {0.25f, -1.0f}) {
+    SCOPED_TRACE(carve);
+    DetailOptions options;
+    options.depth.carve_matte = carve;
+    const DetailFrameSource source(fog, *analysis_, options);
+    ASSERT_TRUE(source.HasDepthProxy());
+    FrameRequest request;
+    request.view = source.SourcePose();
+    request.width = size.width;
+    request.height = size.height;
+    const RenderedFrame base = fog->Render(request, ctx);
+    ASSERT_EQ(cv::countNonZero(base.alpha), size.area()) << "the fog covers the frame";
+    const compose::FaceWarp w = source.DepthWarp(request, base);
+    ExpectSane(w, size);
+    const RenderedFrame frame = source.Render(request, ctx);
+    EXPECT_TRUE(cv::checkRange(frame.bgr) && cv::checkRange(frame.alpha));
+    const double carved = static_cast<double>(cv::countNonZero(w.carved & background)) / cv::countNonZero(background);
+    const double cleared =
+        static_cast<double>(cv::countNonZero((frame.alpha == 0) & background)) / cv::countNonZero(background);
+    std::cout << "[detail] carve_matte " << carve << ": " << carved << " of the photo's background carved, " << cleared
+              << " transparent in the frame\n";
+    if (carve < 0) {
+      EXPECT_EQ(cv::countNonZero(w.carved), 0);
+      EXPECT_EQ(cleared, 0.0);
+      continue;
+    }
+    EXPECT_GT(carved, 0.95);
+    EXPECT_GT(cleared, 0.95);
+    EXPECT_EQ(cv::countNonZero(w.carved & person), 0) << "the person is never carved";
+    EXPECT_EQ(cv::countNonZero((frame.alpha < 255) & person & (matte >= 0.99f)), 0) << "the person stays opaque";
+    // Turned, most of this fog projects outside the photo, where the photo says nothing: kept.
+    request.view.yaw += 30.0;
+    const RenderedFrame turned = source.Render(request, ctx);
+    EXPECT_TRUE(cv::checkRange(turned.bgr) && cv::checkRange(turned.alpha));
+  }
+  compose::DepthDetailOptions bad;
+  bad.carve_matte = 2.0f;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
 }  // namespace
 }  // namespace avatar
+
+
