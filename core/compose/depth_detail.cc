@@ -5,6 +5,7 @@
 #include <limits>
 #include <vector>
 
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/render/view_pose.h"
@@ -113,18 +114,20 @@ DepthDetail::DepthDetail(cv::Mat photo, cv::Mat matte, ViewDepth source, const D
 }
 
 cv::Mat DepthDetail::SplatPerson(const morphable::PinholeCamera& camera, cv::Size size) const {
-  // The person on a grid of the source view as fine as the target, one point per grid pixel; each
-  // point covers its pixel's neighbours too, so that a turned surface shows no pinholes.
-  const int side = std::max(size.width, size.height);
-  const cv::Size grid(side, std::max(1, static_cast<int>(std::lround(static_cast<double>(side) * photo_.rows /
-                                                                      photo_.cols))));
+  // The person on a grid of the source view half as fine as the target, one point per grid
+  // pixel; each point covers two target pixels around it, so that a turned surface shows no
+  // pinholes. The splat decides opacity and depth only: the outline is the matte's, tested per
+  // target pixel in Warp.
+  const int side = std::max(1, (std::max(size.width, size.height) + 1) / 2);
+  const cv::Size grid(
+      side, std::max(1, static_cast<int>(std::lround(static_cast<double>(side) * photo_.rows / photo_.cols))));
   cv::Mat depth, matte;
   cv::resize(filled_, depth, grid, 0, 0, cv::INTER_LINEAR);
   cv::resize(matte_, matte, grid, 0, 0, grid.width < photo_.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
   const morphable::PinholeCamera scam = morphable::PinholeCamera::FromLabel(source_.camera);
   const PixelRays rays(scam);
   cv::Mat z(size, CV_32FC1, cv::Scalar(kInf));
-  constexpr int kHalf = 1;
+  constexpr int kHalf = 2;
   for (int y = 0; y < grid.height; ++y) {
     for (int x = 0; x < grid.width; ++x) {
       if (matte.at<float>(y, x) < options_.outline_matte) continue;
@@ -185,32 +188,35 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
   out.valid = cv::Mat::zeros(size, CV_8UC1);
   out.face = cv::Mat::zeros(size, CV_8UC1);
   cv::Mat carved = cv::Mat::zeros(size, CV_8UC1);
-  for (int y = 0; y < size.height; ++y) {
-    for (int x = 0; x < size.width; ++x) {
-      if (opaque.at<uchar>(y, x) == 0) continue;
-      out.face.at<uchar>(y, x) = 255;
-      const float t = depth.at<float>(y, x);
-      if (!std::isfinite(t) || t <= 0.0f) continue;
-      const cv::Vec3d world = rays.Point(x, y, size, t);
-      const cv::Vec3d p = scam.ToCamera(world);
-      if (!(p[2] > 1e-6)) continue;
-      const cv::Point2d px = scam.ToPixel(p, photo_.size());
-      const int ix = static_cast<int>(std::floor(px.x)), iy = static_cast<int>(std::floor(px.y));
-      if (ix < 0 || iy < 0 || ix >= photo_.cols || iy >= photo_.rows) continue;
-      const bool network = alpha.at<uchar>(y, x) >= options_.min_alpha;
-      if (network && matte_.at<float>(iy, ix) < options_.carve_matte) {
-        carved.at<uchar>(y, x) = 255;  // the photo saw empty space through this point
-        continue;
+  // Rows are independent: split over OpenCV's threads.
+  cv::parallel_for_(cv::Range(0, size.height), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      for (int x = 0; x < size.width; ++x) {
+        if (opaque.at<uchar>(y, x) == 0) continue;
+        out.face.at<uchar>(y, x) = 255;
+        const float t = depth.at<float>(y, x);
+        if (!std::isfinite(t) || t <= 0.0f) continue;
+        const cv::Vec3d world = rays.Point(x, y, size, t);
+        const cv::Vec3d p = scam.ToCamera(world);
+        if (!(p[2] > 1e-6)) continue;
+        const cv::Point2d px = scam.ToPixel(p, photo_.size());
+        const int ix = static_cast<int>(std::floor(px.x)), iy = static_cast<int>(std::floor(px.y));
+        if (ix < 0 || iy < 0 || ix >= photo_.cols || iy >= photo_.rows) continue;
+        const bool network = alpha.at<uchar>(y, x) >= options_.min_alpha;
+        if (network && matte_.at<float>(iy, ix) < options_.carve_matte) {
+          carved.at<uchar>(y, x) = 255;  // the photo saw empty space through this point
+          continue;
+        }
+        if (!network) coverage.at<float>(y, x) = SampleDepth(matte_, px.x, px.y);
+        const float seen = SampleDepth(seen_depth, px.x * sx_scale, px.y * sy_scale);
+        if (!std::isfinite(seen) || cv::norm(world - scam.centre) > seen + tolerance) continue;            // hidden
+        if (matte_.at<float>(iy, ix) < (network ? options_.min_matte : options_.outline_matte)) continue;  // background
+        map_x.at<float>(y, x) = static_cast<float>(px.x);
+        map_y.at<float>(y, x) = static_cast<float>(px.y);
+        out.valid.at<uchar>(y, x) = 255;
       }
-      if (!network) coverage.at<float>(y, x) = SampleDepth(matte_, px.x, px.y);
-      const float seen = SampleDepth(seen_depth, px.x * sx_scale, px.y * sy_scale);
-      if (!std::isfinite(seen) || cv::norm(world - scam.centre) > seen + tolerance) continue;  // hidden
-      if (matte_.at<float>(iy, ix) < (network ? options_.min_matte : options_.outline_matte)) continue;  // background
-      map_x.at<float>(y, x) = static_cast<float>(px.x);
-      map_y.at<float>(y, x) = static_cast<float>(px.y);
-      out.valid.at<uchar>(y, x) = 255;
     }
-  }
+  });
   // A pixel the photo's person alone made opaque is the person only where the photo shows it
   // (the splat's footprint reaches a pixel beyond the matte).
   if (options_.extend_to_matte) out.face.setTo(0, (alpha < options_.min_alpha) & (out.valid == 0));

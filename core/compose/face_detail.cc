@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "core/face/face_geometry.h"
@@ -131,33 +132,36 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   out.valid = cv::Mat::zeros(size, CV_8UC1);
   out.face = cv::Mat::zeros(size, CV_8UC1);
   cv::Mat eye_mouth = cv::Mat::zeros(size, CV_8UC1);
-  for (int y = 0; y < size.height; ++y) {
-    for (int x = 0; x < size.width; ++x) {
-      const int t = raster.triangle.at<int>(y, x);
-      if (t < 0) continue;
-      out.face.at<uchar>(y, x) = 255;
-      const cv::Vec3f b = raster.bary.at<cv::Vec3f>(y, x);
-      const cv::Vec3i& f = triangles[t];
-      // The same surface point of the mesh at the source expression, seen by the source camera.
-      cv::Vec3d world(0, 0, 0);
-      for (int k = 0; k < 3; ++k) {
-        const cv::Point3f& v = source_world_[f[k]];
-        world += static_cast<double>(b[k]) * cv::Vec3d(v.x, v.y, v.z);
+  // Rows are independent: split over OpenCV's threads.
+  cv::parallel_for_(cv::Range(0, size.height), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      for (int x = 0; x < size.width; ++x) {
+        const int t = raster.triangle.at<int>(y, x);
+        if (t < 0) continue;
+        out.face.at<uchar>(y, x) = 255;
+        const cv::Vec3f b = raster.bary.at<cv::Vec3f>(y, x);
+        const cv::Vec3i& f = triangles[t];
+        // The same surface point of the mesh at the source expression, seen by the source camera.
+        cv::Vec3d world(0, 0, 0);
+        for (int k = 0; k < 3; ++k) {
+          const cv::Point3f& v = source_world_[f[k]];
+          world += static_cast<double>(b[k]) * cv::Vec3d(v.x, v.y, v.z);
+        }
+        const cv::Vec3d p = source_cam.ToCamera(world);
+        if (!(p[2] > 1e-6)) continue;
+        const cv::Point2d px = source_cam.ToPixel(p, photo_.size());
+        const int sx = static_cast<int>(std::floor(px.x)), sy = static_cast<int>(std::floor(px.y));
+        if (sx < 0 || sy < 0 || sx >= photo_.cols || sy >= photo_.rows) continue;
+        eye_mouth.at<uchar>(y, x) = eye_mouth_.at<uchar>(sy, sx) != 0 ? 255 : 0;
+        if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
+        if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
+        if (changed.at<uchar>(y, x) != 0) continue;                        // the photo shows another expression here
+        map_x.at<float>(y, x) = static_cast<float>(px.x);
+        map_y.at<float>(y, x) = static_cast<float>(px.y);
+        out.valid.at<uchar>(y, x) = 255;
       }
-      const cv::Vec3d p = source_cam.ToCamera(world);
-      if (!(p[2] > 1e-6)) continue;
-      const cv::Point2d px = source_cam.ToPixel(p, photo_.size());
-      const int sx = static_cast<int>(std::floor(px.x)), sy = static_cast<int>(std::floor(px.y));
-      if (sx < 0 || sy < 0 || sx >= photo_.cols || sy >= photo_.rows) continue;
-      eye_mouth.at<uchar>(y, x) = eye_mouth_.at<uchar>(sy, sx) != 0 ? 255 : 0;
-      if (p[2] > source_depth_.at<float>(sy, sx) + tolerance) continue;  // hidden in the photo
-      if (matte_.at<float>(sy, sx) < options_.min_matte) continue;       // background in the photo
-      if (changed.at<uchar>(y, x) != 0) continue;  // the photo shows another expression here
-      map_x.at<float>(y, x) = static_cast<float>(px.x);
-      map_y.at<float>(y, x) = static_cast<float>(px.y);
-      out.valid.at<uchar>(y, x) = 255;
     }
-  }
+  });
   FaceWarp warp = WarpFromMaps(photo_, map_x, map_y, out.valid, out.face, options_.feather);
   warp.cavity_bgr = cavity_colour_;
   warp.eye_mouth = std::move(eye_mouth);
@@ -212,7 +216,8 @@ cv::Mat FaceDetail::ChangedEyeMouth(const std::vector<cv::Point3f>& target_world
   if (!openings) {
     // A margin around the contour: the photo's lids and lips there moved with the expression too.
     const int margin = std::max(1, static_cast<int>(std::lround(0.015 * size.height)));
-    cv::dilate(changed, changed, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * margin + 1, 2 * margin + 1)));
+    cv::dilate(changed, changed,
+               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * margin + 1, 2 * margin + 1)));
   }
   return changed;
 }
@@ -323,7 +328,8 @@ void ClearCarved(const FaceWarp& warp, cv::Mat* bgr, cv::Mat* alpha, cv::Mat* de
   keep.setTo(1.0f, warp.carved);
   keep = 1.0 - keep;
   if (bgr != nullptr && !bgr->empty()) {
-    AVATAR_CHECK_INPUT(bgr->type() == CV_8UC3 && bgr->size() == size) << "detail: the frame must be BGR8 of the mask's size";
+    AVATAR_CHECK_INPUT(bgr->type() == CV_8UC3 && bgr->size() == size)
+        << "detail: the frame must be BGR8 of the mask's size";
     cv::Mat f, keep3;
     bgr->convertTo(f, CV_32FC3);
     cv::cvtColor(keep, keep3, cv::COLOR_GRAY2BGR);
@@ -331,14 +337,16 @@ void ClearCarved(const FaceWarp& warp, cv::Mat* bgr, cv::Mat* alpha, cv::Mat* de
     f.convertTo(*bgr, CV_8UC3);
   }
   if (alpha != nullptr && !alpha->empty()) {
-    AVATAR_CHECK_INPUT(alpha->type() == CV_8UC1 && alpha->size() == size) << "detail: alpha must be CV_8UC1 of the mask's size";
+    AVATAR_CHECK_INPUT(alpha->type() == CV_8UC1 && alpha->size() == size)
+        << "detail: alpha must be CV_8UC1 of the mask's size";
     cv::Mat f;
     alpha->convertTo(f, CV_32FC1);
     f = f.mul(keep);
     f.convertTo(*alpha, CV_8UC1);
   }
   if (depth != nullptr && !depth->empty()) {
-    AVATAR_CHECK_INPUT(depth->type() == CV_32FC1 && depth->size() == size) << "detail: depth must be CV_32FC1 of the mask's size";
+    AVATAR_CHECK_INPUT(depth->type() == CV_32FC1 && depth->size() == size)
+        << "detail: depth must be CV_32FC1 of the mask's size";
     depth->setTo(std::numeric_limits<float>::infinity(), warp.carved);
   }
 }
