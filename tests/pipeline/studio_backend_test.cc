@@ -31,11 +31,21 @@ class StudioBackend : public ::testing::Test {
   static void SetUpTestSuite() {
     dir_ = new TempDir();
     morphable::testing::SyntheticModel(morphable::testing::InstalledTopology(), 4, 6).Save(*dir_ / "model.avmm");
+    // Restored after the suite: later suites of this process use the installed model.
+    const char* previous = std::getenv("AVATAR_MORPHABLE_MODEL");
+    previous_model_ = previous != nullptr ? new std::string(previous) : nullptr;
     ASSERT_EQ(setenv("AVATAR_MORPHABLE_MODEL", (*dir_ / "model.avmm").c_str(), 1), 0);
     portrait_ = new cv::Mat(LoadImageBgr(
         DataPaths::Resolve().Require(DataPaths::kDefaultPortrait, "the sample portrait (run scripts/setup)")));
   }
   static void TearDownTestSuite() {
+    if (previous_model_ != nullptr) {
+      setenv("AVATAR_MORPHABLE_MODEL", previous_model_->c_str(), 1);
+    } else {
+      unsetenv("AVATAR_MORPHABLE_MODEL");
+    }
+    delete previous_model_;
+    previous_model_ = nullptr;
     delete portrait_;
     delete dir_;
   }
@@ -48,7 +58,9 @@ class StudioBackend : public ::testing::Test {
   }
   static TempDir* dir_;
   static cv::Mat* portrait_;
+  static std::string* previous_model_;
 };
+std::string* StudioBackend::previous_model_ = nullptr;
 TempDir* StudioBackend::dir_ = nullptr;
 cv::Mat* StudioBackend::portrait_ = nullptr;
 
