@@ -15,6 +15,15 @@
 namespace avatar::compose {
 namespace {
 
+// A CV_8UC1 mask as a CV_32FC1 weight: 1 on the mask, its edge softened by a pixel outside.
+cv::Mat SoftenedByAPixel(const cv::Mat& mask) {
+  cv::Mat weight;
+  mask.convertTo(weight, CV_32FC1, 1.0 / 255.0);
+  cv::GaussianBlur(weight, weight, cv::Size(3, 3), 0.0);
+  weight.setTo(1.0f, mask);
+  return weight;
+}
+
 // Camera-space points and their screen vertices (pixel position, depth) for `size`.
 void Project(const morphable::PinholeCamera& cam, const std::vector<cv::Point3f>& world, cv::Size size,
              std::vector<cv::Vec3d>* camera_points, std::vector<morphable::ScreenVertex>* screen) {
@@ -122,8 +131,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   const cv::Mat changed = ChangedEyeMouth(target_world, target_screen, size, &mouth_opening);
   // The mouth's interior: inside the changed mouth's inner lip line, where the mesh only stretches
   // the photo's closed lips.
-  cv::Mat cavity = cv::Mat::zeros(size, CV_8UC1);
-  if (options_.mouth_cavity_shade >= 0.0) cavity.setTo(255, mouth_opening);
+  cv::Mat cavity = options_.mouth_cavity_shade >= 0.0 ? mouth_opening : cv::Mat::zeros(size, CV_8UC1);
 
   const auto& triangles = model_.topology().triangles;
   const double tolerance = options_.depth_tolerance * render::kCameraRadius;
@@ -308,13 +316,9 @@ cv::Mat PaintCavity(const cv::Mat& frame, const FaceWarp& warp) {
   if (warp.cavity.empty() || cv::countNonZero(warp.cavity) == 0) return frame;
   AVATAR_CHECK_INPUT(warp.cavity.type() == CV_8UC1 && warp.cavity.size() == frame.size())
       << "detail: the cavity must be CV_8UC1 of the frame's size";
-  cv::Mat weight;
-  warp.cavity.convertTo(weight, CV_32FC1, 1.0 / 255.0);
-  cv::GaussianBlur(weight, weight, cv::Size(3, 3), 0.0);
-  weight.setTo(1.0f, warp.cavity);  // the cavity itself fully
   FaceWarp layer;
   layer.bgr = cv::Mat(frame.size(), CV_8UC3, cv::Scalar(warp.cavity_bgr[0], warp.cavity_bgr[1], warp.cavity_bgr[2]));
-  layer.weight = weight;
+  layer.weight = SoftenedByAPixel(warp.cavity);
   return Composite(frame, layer);
 }
 
@@ -322,11 +326,7 @@ void ClearCarved(const FaceWarp& warp, cv::Mat* bgr, cv::Mat* alpha, cv::Mat* de
   if (warp.carved.empty() || cv::countNonZero(warp.carved) == 0) return;
   AVATAR_CHECK_INPUT(warp.carved.type() == CV_8UC1) << "detail: the carved mask must be CV_8UC1";
   const cv::Size size = warp.carved.size();
-  cv::Mat keep;
-  warp.carved.convertTo(keep, CV_32FC1, 1.0 / 255.0);
-  cv::GaussianBlur(keep, keep, cv::Size(3, 3), 0.0);
-  keep.setTo(1.0f, warp.carved);
-  keep = 1.0 - keep;
+  const cv::Mat keep = 1.0 - SoftenedByAPixel(warp.carved);
   if (bgr != nullptr && !bgr->empty()) {
     AVATAR_CHECK_INPUT(bgr->type() == CV_8UC3 && bgr->size() == size)
         << "detail: the frame must be BGR8 of the mask's size";

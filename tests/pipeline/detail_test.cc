@@ -642,6 +642,16 @@ TEST_F(Detail, BadInputsAreRefused) {
   EXPECT_THROW(options.Validate(), InvalidOptions);
   EXPECT_THROW(ValidateDetailMode("sharp"), InvalidOptions);
   EXPECT_NO_THROW(ValidateDetailMode("face"));
+  // Masks of another size than the frame they change: a clear error, the frame untouched.
+  compose::FaceWarp odd;
+  odd.cavity = cv::Mat(8, 8, CV_8UC1, cv::Scalar(255));
+  odd.carved = odd.cavity;
+  cv::Mat frame(16, 16, CV_8UC3, cv::Scalar(10, 20, 30)), alpha(16, 16, CV_8UC1, cv::Scalar(255));
+  EXPECT_THROW(compose::PaintCavity(frame, odd), InvalidInput);
+  EXPECT_THROW(compose::ClearCarved(odd, &frame, &alpha, nullptr), InvalidInput);
+  EXPECT_EQ(cv::countNonZero(alpha != 255), 0);
+  EXPECT_THROW(compose::FeatheredWeight(cv::Mat::zeros(16, 16, CV_8UC1), 0.1, cv::Mat::zeros(8, 8, CV_8UC1)),
+               InvalidInput);
   const morphable::MorphableModel& model = *analysis_->model;
   EXPECT_THROW(compose::FaceDetail(model, analysis_->morphable_fit, cv::Mat(), cv::Mat(), cv::Mat()), InvalidInput);
   EXPECT_THROW(compose::FaceDetail(model, analysis_->morphable_fit, cv::Mat(100, 100, CV_8UC3), cv::Mat(), cv::Mat()),
