@@ -34,6 +34,8 @@ void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(in_channels >= 1) << "the fusion net needs input channels, got " << in_channels;
   AVATAR_CHECK_OPTION(widths.size() >= 2) << "the fusion net needs at least two levels, got " << widths.size();
   for (int64_t w : widths) AVATAR_CHECK_OPTION(w >= 1 && w <= 1024) << "fusion net width " << w << " is outside 1..1024";
+  AVATAR_CHECK_OPTION(!keep_warped || in_channels >= 8)
+      << "keep_warped needs the warp weights in input channels 6 and 7, got " << in_channels << " channels";
 }
 
 FusionNetImpl::FusionNetImpl(const FusionNetOptions& options) : options_(options) {
@@ -88,9 +90,14 @@ std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor
   return {2.0 * torch::tanh(out.slice(1, 0, 3)), torch::sigmoid(out.slice(1, 3, 4))};
 }
 
+torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x) const {
+  if (!options_.keep_warped) return torch::ones_like(x.slice(1, 0, 1));
+  return 1.0 - std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
+}
+
 torch::Tensor FusionNetImpl::forward(const torch::Tensor& x) {
   const auto [residual, mask] = Heads(x);
-  return x.slice(1, 0, 3) + mask * residual;
+  return x.slice(1, 0, 3) + OpenTo(x) * mask * residual;
 }
 
 int64_t FusionNetImpl::ParameterCount() const {
@@ -107,6 +114,7 @@ void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, cons
                   {"data_provenance", info.data_provenance},
                   {"in_channels", net->options().in_channels},
                   {"widths", net->options().widths},
+                  {"keep_warped", net->options().keep_warped},
                   {"dtype", half_precision ? "float16" : "float32"}};
   torch::NoGradGuard no_grad;
   for (const auto& item : net->named_parameters()) {
@@ -125,6 +133,7 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
   try {
     options.in_channels = archive.meta.at("in_channels").get<int64_t>();
     options.widths = archive.meta.at("widths").get<std::vector<int64_t>>();
+    options.keep_warped = archive.meta.contains("keep_warped") && archive.meta.at("keep_warped").get<bool>();
     options.Validate();
   } catch (const std::exception& e) {
     throw ModelLoad(path.string() + ": the fusion net's shape is missing or invalid (" + e.what() +

@@ -3,7 +3,10 @@
 // looks at the geometric composite (the photo warped where it saw the surface over the upsampled
 // network render), the network render itself and the masks that say where each came from, and
 // predicts a residual and a blend mask:
-//   out = composite + sigmoid(m) * 2 tanh(r)
+//   out = composite + (1 - keep) * sigmoid(m) * 2 tanh(r),   keep = max(face weight, depth weight)
+// where keep_warped (the default since fusion-8) holds the photo wherever the composite is the
+// photo: a net trained without it (fusion-1..7, keep = 0) learned to soften the warped photo
+// everywhere and cost 4.8 dB on the photo's own view (docs/training/README.md).
 // The residual head starts at zero, so an untrained net returns the composite exactly, and the
 // mask's bias at -2 (sigmoid 0.12), so that the residual learns from the first step (a mask
 // started nearly shut, bias -6, left the validation loss flat over the first 250 steps of
@@ -42,7 +45,12 @@ struct FusionNetOptions {
   int64_t in_channels = kFusionInputChannels;
   // Feature widths from the full resolution down; the last is the bottleneck's (at 1/2^(n-1)).
   std::vector<int64_t> widths = {16, 32, 64, 96};
-  // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels).
+  // The residual acts only where the photo's warps did not reach (1 - the larger of channels 6
+  // and 7): where the composite is the photo, the output is the composite exactly. Weights files
+  // without the flag (before fusion-8) load with it off.
+  bool keep_warped = true;
+  // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels,
+  // keep_warped without the two warp-weight channels).
   void Validate() const;
 };
 
@@ -54,6 +62,8 @@ class FusionNetImpl : public torch::nn::Module {
   torch::Tensor forward(const torch::Tensor& x);
   // The residual and the blend mask before they are combined: {r [B,3,H,W], m [B,1,H,W] in (0,1)}.
   std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x);
+  // Where the residual may act, [B,1,H,W] in [0,1]: 1 - keep (all ones without keep_warped).
+  torch::Tensor OpenTo(const torch::Tensor& x) const;
   const FusionNetOptions& options() const { return options_; }
   int64_t ParameterCount() const;
 

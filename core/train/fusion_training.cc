@@ -146,9 +146,10 @@ FusionSamples LoadFusionSplit(const std::string& dir, const std::string& split) 
     const int64_t n = t[0].size(0);
     for (int k = 0; k < 5; ++k) {
       AVATAR_CHECK_INPUT(t[k].size(0) == n) << f.string() << ": its tensors hold different sample counts";
-      if (k < 4)
+      if (k < 4) {
         AVATAR_CHECK_INPUT(t[k].size(2) == t[0].size(2) && t[k].size(3) == t[0].size(3))
             << f.string() << ": its frames differ in size";
+      }
       parts[k].push_back(t[k]);
     }
   }
@@ -199,6 +200,7 @@ void FusionTrainOptions::Validate() const {
   loss.Validate();
   FusionNetOptions net;
   net.widths = widths;
+  net.keep_warped = keep_warped;
   net.Validate();
 }
 
@@ -248,6 +250,7 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
   if (ec) throw Io(o.out_dir + ": cannot create the run folder: " + ec.message());
   FusionNetOptions net_options;
   net_options.widths = o.widths;
+  net_options.keep_warped = o.keep_warped;
   torch::manual_seed(o.seed);  // a fresh run's initial weights depend on the seed only
   FusionNet net(net_options);
   torch::optim::Adam adam(net->parameters(), torch::optim::AdamOptions(o.lr).betas({0.9, 0.99}));

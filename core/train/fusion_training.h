@@ -67,6 +67,7 @@ struct FusionTrainOptions {
   int validate_samples = 64;      // validation frames (evenly spread), whole frames
   int max_bad_steps = 20;         // non-finite steps in a row before the run stops
   std::vector<int64_t> widths = {16, 32, 64, 96};
+  bool keep_warped = true;  // FusionNetOptions::keep_warped; --init may start from a net without it
   bool progress = true;
   std::string data_dir;  // where the MobileNetV2 weights are ("" = default)
 
@@ -84,6 +85,7 @@ struct FusionTrainOptions {
     v("color_jitter", color_jitter, "Per-crop colour change (channel order, gain and offset) of the images; 0 = off");
     v("l1", loss.l1, "Weight of the L1 term");
     v("perceptual", loss.perceptual, "Weight of the MobileNetV2 perceptual term");
+    v("keep_warped", keep_warped, "Keep the photo wherever its warp reached (the residual acts only elsewhere)");
     v("seed", seed, "Seed of the crops and batches");
     v("validate_every", validate_every, "Steps between validations");
     v("validate_samples", validate_samples, "Validation frames");

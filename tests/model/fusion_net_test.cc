@@ -37,6 +37,49 @@ TEST(FusionNet, UntrainedReturnsTheCompositeWithinTheBudget) {
   EXPECT_THROW(bad.Validate(), InvalidOptions);
 }
 
+// keep_warped: wherever either warp's weight is 1 the output is the composite exactly, whatever
+// the heads say; where both are 0 the residual acts in full; between, in proportion. Without the
+// flag (the nets before fusion-8) the residual acts everywhere.
+TEST(FusionNet, KeepsThePhotoWhereTheWarpReached) {
+  torch::manual_seed(13);
+  FusionNetOptions o;
+  o.widths = {4, 8};
+  FusionNet net(o);
+  ASSERT_TRUE(net->options().keep_warped);
+  {
+    torch::NoGradGuard no_grad;  // a net whose residual is large everywhere
+    for (auto& p : net->named_parameters())
+      if (p.key() == "head.bias") p.value().fill_(1.0);
+  }
+  torch::Tensor x = torch::rand({1, kFusionInputChannels, 16, 16}) * 2 - 1;
+  x.slice(1, 6, 8).zero_();
+  x.slice(1, 6, 7).slice(3, 0, 4).fill_(1.0);   // face warp reached columns 0-3
+  x.slice(1, 7, 8).slice(3, 4, 8).fill_(1.0);   // depth warp reached columns 4-7
+  x.slice(1, 7, 8).slice(3, 8, 12).fill_(0.5);  // half way in columns 8-11; nothing in 12-15
+  torch::NoGradGuard no_grad;
+  const torch::Tensor composite = x.slice(1, 0, 3);
+  const torch::Tensor y = net->forward(x);
+  const auto [r, m] = net->Heads(x);
+  const torch::Tensor full = m * r;
+  EXPECT_GT(full.abs().min().item<double>(), 0.1);
+  EXPECT_TRUE(torch::equal(y.slice(3, 0, 8), composite.slice(3, 0, 8)));
+  EXPECT_TRUE(torch::allclose(y.slice(3, 8, 12), (composite + 0.5 * full).slice(3, 8, 12), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(y.slice(3, 12, 16), (composite + full).slice(3, 12, 16), 1e-5, 1e-6));
+  o.keep_warped = false;
+  FusionNet open(o);
+  {
+    auto dst = open->parameters();
+    auto src = net->parameters();
+    for (size_t k = 0; k < dst.size(); ++k) dst[k].copy_(src[k]);
+  }
+  EXPECT_TRUE(torch::allclose(open->forward(x), composite + full, 1e-5, 1e-6));
+  FusionNetOptions bad;
+  bad.in_channels = 6;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+  bad.keep_warped = false;
+  EXPECT_NO_THROW(bad.Validate());
+}
+
 // d(loss)/d(parameter) against central differences, in double, for entries of every parameter.
 TEST(FusionNet, GradientMatchesFiniteDifferences) {
   torch::manual_seed(5);
@@ -151,7 +194,16 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
   EXPECT_EQ(read.step, 1234);
   EXPECT_EQ(read.data_provenance, "a test");
   EXPECT_EQ(read.options.widths, o.widths);
+  EXPECT_TRUE(read.options.keep_warped);
   EXPECT_EQ(read.fingerprint.size(), 16u);
+  {
+    FusionNetOptions old = o;
+    old.keep_warped = false;
+    SaveFusionNet(dir / "open.ckpt", FusionNet(old), info, false);
+    FusionNetInfo open_info;
+    LoadFusionNet(dir / "open.ckpt", &open_info);
+    EXPECT_FALSE(open_info.options.keep_warped);
+  }
   const FusionNet b = LoadFusionNet(dir / "f16.ckpt");
   const auto p = net->parameters(), pa = a->parameters(), pb = b->parameters();
   ASSERT_EQ(p.size(), pa.size());
