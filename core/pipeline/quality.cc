@@ -11,6 +11,7 @@
 #include <functional>
 #include <iomanip>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -20,8 +21,14 @@
 #include "core/io/atomic_file.h"
 #include "core/io/data_paths.h"
 #include "core/model/model_config.h"
+#include "core/morphable/fitter.h"
+#include "core/morphable/morphable_model.h"
+#include "core/pipeline/detail_source.h"
 #include "core/pipeline/probe.h"
+#include "core/pipeline/session_source.h"
+#include "core/pipeline/source_analysis.h"
 #include "core/render/camera.h"
+#include "core/render/view_pose.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 #include "core/util/measure.h"
@@ -138,7 +145,9 @@ json EntryJson(const QualityEstimates& e) {
   // The stored key keeps its first name, "presets" (the cache format is unchanged).
   json levels = json::object();
   for (const auto& p : e.levels) {
-    levels[p.level] = {{"reconstruct_seconds", p.reconstruct_seconds}, {"frame_seconds", p.frame_seconds}};
+    levels[p.level] = {{"reconstruct_seconds", p.reconstruct_seconds},
+                       {"frame_seconds", p.frame_seconds},
+                       {"detail_frame_seconds", p.detail_frame_seconds}};
   }
   j["presets"] = levels;
   return j;
@@ -170,6 +179,10 @@ std::optional<QualityEstimates> EntryFromJson(const json& j, std::string* why) {
       q.level = p.name;
       q.reconstruct_seconds = levels.at(p.name).at("reconstruct_seconds").get<double>();
       q.frame_seconds = levels.at(p.name).at("frame_seconds").get<double>();
+      q.detail_frame_seconds = levels.at(p.name).value("detail_frame_seconds", 0.0);
+      if (!(std::isfinite(q.detail_frame_seconds) && q.detail_frame_seconds >= 0.0)) {
+        return fail("a bad detail frame time of quality level '" + p.name + "'");
+      }
       e.levels.push_back(q);
     }
   } catch (const json::exception& ex) {
@@ -314,6 +327,9 @@ std::string QualityLadderFingerprint() {
     p.summary.clear();  // wording changes do not change the times
     j.push_back(options::ToJson(p));
   }
+  // What is measured: since 2026-12-06 also each level's frame through the detail path (caches
+  // from before are measured again).
+  j.push_back("detail frames at " + std::to_string(kQualityDetailSize));
   // FNV-1a of the definitions.
   uint64_t h = 1469598103934665603ull;
   for (const unsigned char c : j.dump()) {
@@ -343,7 +359,11 @@ bool QualityEstimates::Complete() const {
 
 std::string FormatQualityEstimate(const QualityEstimate* estimate) {
   if (estimate == nullptr) return "not measured yet";
-  return "reconstruct ~" + Seconds(estimate->reconstruct_seconds) + ", frame " + Millis(estimate->frame_seconds);
+  std::string text = "reconstruct ~" + Seconds(estimate->reconstruct_seconds) + ", frame " + Millis(estimate->frame_seconds);
+  if (estimate->detail_frame_seconds > 0.0) {
+    text += ", with detail " + Millis(estimate->detail_frame_seconds) + " at " + std::to_string(kQualityDetailSize) + " px";
+  }
+  return text;
 }
 
 int QualityEstimateThreads() {
@@ -405,6 +425,25 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
   e.refine_step_seconds = std::max(1e-6, (many - one) / refine_probe_steps);
   e.refine_setup_seconds = std::max(0.0, one - e.refine_step_seconds);
 
+  // The photo's detail path over the probe: a neutral morphable head at the probe's camera (the
+  // timing does not depend on the face). Without a morphable model the detail times stay 0.
+  std::optional<SourceAnalysis> detail_analysis;
+  try {
+    const morphable::MorphableModel& model = morphable::LoadDefaultModel(DataPaths::Resolve(refine_base.data_dir));
+    morphable::FitResult head = morphable::FitFromLabel(
+        morphable::Alpha(static_cast<size_t>(model.num_identity()), 0.0f),
+        morphable::Beta(static_cast<size_t>(model.num_expression()), 0.0f), 1.0f, fit.camera, portrait.image.size());
+    face::AlignedPortrait probe = portrait;
+    probe.image_unmatted = portrait.image;
+    probe.image = cv::Mat();
+    if (probe.matte.type() != CV_32FC1) probe.matte.convertTo(probe.matte, CV_32FC1);
+    detail_analysis = AnalysisFromFit(std::move(probe), std::move(head), refine_base.data_dir);
+  } catch (const Error& ex) {
+    AVATAR_LOG(kInfo) << "quality estimates without the detail path's times: " << ex.what();
+  }
+  // Not owned: the frame sources below live inside this call.
+  const std::shared_ptr<const Session> shared(&session, [](const Session*) {});
+
   const auto& ladder = QualityLadder();
   for (size_t i = 0; i < ladder.size(); ++i) {
     const QualityLevel& p = ladder[i];
@@ -424,6 +463,19 @@ QualityEstimates MeasureQualityEstimates(const Session& session, const RefineOpt
       if (ro.seconds > 0) refine = ro.steps > 0 ? std::min(refine, ro.seconds) : ro.seconds;
     }
     q.reconstruct_seconds = std::max(1e-6, e.one_shot_seconds + refine);
+    if (detail_analysis) {
+      auto network = std::make_shared<SessionFrameSource>(shared, avatar, false, detail_analysis->overlay);
+      network->SetRenderSettings(settings);
+      Timer bake;
+      const DetailFrameSource detail(std::move(network), *detail_analysis);
+      q.reconstruct_seconds += bake.Seconds();
+      FrameRequest request;
+      request.view = render::PoseOfCamera(fit.camera);
+      request.view.yaw += 10.0;  // a new view, as the network's frames
+      request.width = request.height = kQualityDetailSize;
+      q.detail_frame_seconds =
+          std::max(1e-6, MedianSeconds(repeats, ctx, [&] { RunContext inner; detail.Render(request, inner); }));
+    }
     e.levels.push_back(q);
   }
   e.measured_at = UtcNow();

@@ -12,7 +12,9 @@
 // Estimates cover the network: reconstruct seconds = the one-shot forward (T_c, T_p) plus the
 // level's refinement steps (measured seconds per step x steps); frame seconds = one
 // Session::Animate at the level's render settings (new view, cached expression). Face analysis
-// and the morphable fit of the photo come on top (the same for every level).
+// and the morphable fit of the photo come on top (the same for every level). When the morphable
+// model is installed, each level also gets the frame through the photo's detail path (the
+// studio's default) at 256 px, and reconstruct seconds add the detail path's bake.
 
 #include <filesystem>
 #include <optional>
@@ -77,7 +79,14 @@ struct QualityEstimate {
   std::string level;  // QualityLevel::name
   double reconstruct_seconds = 0.0;  // one-shot forward + refinement
   double frame_seconds = 0.0;        // one frame at the level's render settings
+  // One frame of the same network render finished by the photo's detail path (detail_source.h,
+  // mode head) at kQualityDetailSize px, the studio's interactive output; 0 = not measured (no
+  // morphable model installed).
+  double detail_frame_seconds = 0.0;
 };
+
+// Output side of the detail-path estimates (the studio's interactive frames).
+inline constexpr int kQualityDetailSize = 256;
 
 // The estimates of one model on this machine at one thread count.
 struct QualityEstimates {
@@ -98,7 +107,8 @@ struct QualityEstimates {
   bool Complete() const;
 };
 
-// "reconstruct ~12.3 s, frame 85 ms" or "not measured yet" (null).
+// "reconstruct ~12.3 s, frame 85 ms" (+ ", with detail 120 ms at 256 px" when measured) or "not
+// measured yet" (null).
 std::string FormatQualityEstimate(const QualityEstimate* estimate);
 
 // The thread count estimates are keyed by: ConfigureThreads' value, else LibTorch's current one.

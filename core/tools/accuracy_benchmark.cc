@@ -18,9 +18,13 @@
 #include "core/tools/benchmarks.h"
 #include "core/tools/evaluate.h"
 #include "core/io/image_tensor.h"
+#include "core/pipeline/detail_source.h"
 #include "core/pipeline/probe.h"
 #include "core/pipeline/refine.h"
 #include "core/pipeline/session.h"
+#include "core/pipeline/session_source.h"
+#include "core/pipeline/source_analysis.h"
+#include "core/tools/dataset_records.h"
 #include "core/render/view_pose.h"
 #include "core/train/dataset.h"
 #include "core/train/losses.h"
@@ -96,8 +100,10 @@ std::vector<int64_t> ChoosePortraits(const train::TrainDataset& dataset, int n) 
   return chosen;
 }
 
-// Row::kind of a quality level's row (the value accuracy.json stores keeps its first word).
+// Row::kind of a quality level's row (the value accuracy.json stores keeps its first word), and of
+// its detail-path twin.
 constexpr const char* kLevelRow = "preset";
+constexpr const char* kDetailRow = "detail";
 
 // One row of the table: render settings + refinement steps.
 struct Row {
@@ -106,6 +112,7 @@ struct Row {
   RenderSettings settings;
   std::string describe;
   int steps = 0;
+  bool detail = false;  // rendered through the photo's detail path
   // Per portrait.
   std::vector<double> reconstruct_s, frame_s, psnr, psnr_matte, ssim, perceptual;
   std::vector<face::PairFaceMetrics> turned_plus, turned_minus;
@@ -280,6 +287,7 @@ void AccuracyBenchmarkOptions::Validate() const {
   AVATAR_CHECK_OPTION(std::isfinite(yaw) && yaw > 0.0 && yaw <= 90.0) << "--yaw must be within (0, 90], got " << yaw;
   Steps();
   AVATAR_CHECK_OPTION(!Levels().empty() || !Steps().empty()) << "nothing to measure: give --quality or --refine-steps";
+  ValidateDetailMode(detail);
 }
 
 AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& options, RunContext& ctx,
@@ -300,7 +308,8 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
   SessionOptions so;
   so.checkpoint = options.checkpoint;
   so.data_dir = options.data_dir;
-  const Session session(so);
+  const auto shared_session = std::make_shared<const Session>(so);
+  const Session& session = *shared_session;
   const ModelInfo info = session.Info();
   const int compare = std::max(info.sr_size, info.render_size);  // every row is compared at this size
 
@@ -333,6 +342,13 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
     r.describe = p->Describe(info);
     r.steps = p->refine_steps;
     rows.push_back(r);
+    if (options.detail != "off") {
+      r.name += " + detail";
+      r.kind = kDetailRow;
+      r.describe += ", detail " + options.detail;
+      r.detail = true;
+      rows.push_back(r);
+    }
   }
   const QualityLevel& standard = QualityLevelByName("standard");
   for (int steps : options.Steps()) {
@@ -345,6 +361,17 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
     r.describe = p.Describe(info);
     r.steps = steps;
     rows.push_back(r);
+  }
+  // The detail rows need each portrait's crop and morphable fit: the dataset's records of the pairs.
+  std::string detail_left_out;
+  SplitPairRecords records;
+  if (options.detail != "off") {
+    records = LoadSplitPairRecords(data, "val", dataset.size());
+    if (!records.ok) {
+      detail_left_out = "the detail rows are left out: " + records.why;
+      rows.erase(std::remove_if(rows.begin(), rows.end(), [](const Row& r) { return r.detail; }), rows.end());
+      if (notes) notes("bench accuracy: " + detail_left_out + "\n");
+    }
   }
   std::set<int> step_counts;
   for (const auto& r : rows) step_counts.insert(r.steps);
@@ -403,26 +430,54 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
       // The expression planes of this avatar, once (frames then time a new view only).
       session.Animate(avatar, Expression{}, portrait.fit.camera, RenderSettings{});
     }
+    SourceAnalysis analysis;
+    if (records.ok) {
+      const json& record = records.records.at(records.pairs.at(static_cast<size_t>(chosen[k])).first);
+      face::AlignedPortrait crop = RecordPortrait(data, record);
+      morphable::FitResult record_fit = RecordFit(record, crop.image_unmatted.size());
+      analysis = AnalysisFromFit(std::move(crop), std::move(record_fit), options.data_dir);
+    }
     for (auto& row : rows) {
       ctx.ThrowIfCancelled();
       const Avatar& avatar = avatars.at(row.steps);
       std::vector<double> frame_times;
-      auto render = [&](const std::array<float, 25>& camera) {
+      double bake_s = 0.0;
+      std::unique_ptr<DetailFrameSource> detail;
+      if (row.detail) {
+        auto network = std::make_shared<SessionFrameSource>(shared_session, avatar, false, analysis.overlay);
+        network->SetRenderSettings(row.settings);
+        DetailOptions d;
+        d.mode = options.detail;
+        Timer bake;
+        detail = std::make_unique<DetailFrameSource>(std::move(network), analysis, d);
+        bake_s = bake.Seconds();
+      }
+      // The network's frame at `camera`, or the detail path's at `pose` (the same camera: the
+      // avatar's source camera is the portrait's).
+      auto render = [&](const std::array<float, 25>& camera, const render::ViewPose& pose) {
         Timer t;
-        Frame f = session.Animate(avatar, Expression{}, camera, row.settings);
+        Frame f;
+        if (detail) {
+          FrameRequest q;
+          q.view = pose;
+          q.width = q.height = compare;
+          f.bgr = detail->Render(q, quiet).bgr;
+        } else {
+          f = session.Animate(avatar, Expression{}, camera, row.settings);
+        }
         frame_times.push_back(t.Seconds());
         return f;
       };
-      const Frame source_view = render(portrait.fit.camera);
-      const Frame turned_plus = render(cam_plus);
-      const Frame turned_minus = render(cam_minus);
+      const Frame source_view = render(portrait.fit.camera, source_pose);
+      const Frame turned_plus = render(cam_plus, plus);
+      const Frame turned_minus = render(cam_minus, minus);
       cv::Mat shown;
       cv::resize(source_view.bgr, shown, cv::Size(compare, compare), 0, 0,
                  source_view.bgr.cols < compare ? cv::INTER_CUBIC : cv::INTER_AREA);
       const torch::Tensor rendered = ImageToTensor(shown, compare, "source-view render");
       const train::ImageMetrics full = EvaluationImageMetrics(rendered, target, {}, perceptual.get());
       const train::ImageMetrics weighted = EvaluationImageMetrics(rendered, target, matte, nullptr);
-      row.reconstruct_s.push_back(one_shot_s + refine_s.at(row.steps));
+      row.reconstruct_s.push_back(one_shot_s + refine_s.at(row.steps) + bake_s);
       row.frame_s.push_back(Median(frame_times));
       row.psnr.push_back(full.psnr[0].item<double>());
       row.ssim.push_back(full.ssim[0].item<double>());
@@ -480,6 +535,7 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
                {"kind", r.kind},
                {"settings", r.describe},
                {"refine_steps", r.steps},
+               {"detail", r.detail ? options.detail : std::string("off")},
                {"render_size", r.settings.resolution},
                {"num_coarse", r.settings.num_coarse},
                {"num_importance", r.settings.num_importance},
@@ -501,19 +557,23 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
      << compare << " px (renders resized bicubically), as `eval` does; PSNR (matte) weights by the person matte. "
      << "CSIM = fr_feature cosine similarity of the renders at yaw +-" << options.yaw
      << " degrees (about the source camera) with the source photo, over the renders with a face (count in brackets). "
-        "Rows 'refine N' are the model's render settings after N refinement steps.\n";
+        "Rows 'refine N' are the model's render settings after N refinement steps. Rows 'LEVEL + detail' render the "
+        "same avatar through the photo's detail path (its bake, the source-view depth, is in reconstruct s).\n";
+  if (!detail_left_out.empty()) md << "\nNote: " << detail_left_out << ".\n";
 
   // Plot: PSNR and CSIM against reconstruct seconds.
-  std::vector<Series> psnr_series(2), csim_series(2);
+  std::vector<Series> psnr_series(3), csim_series(3);
   psnr_series[0] = {"quality levels", cv::Scalar(200, 90, 30), false, {}, {}};
   psnr_series[1] = {"refinement sweep", cv::Scalar(40, 140, 40), true, {}, {}};
+  psnr_series[2] = {"levels + detail", cv::Scalar(40, 60, 210), false, {}, {}};
   csim_series[0] = {"levels, mean of +-yaw", cv::Scalar(200, 90, 30), false, {}, {}};
   csim_series[1] = {"refinement sweep", cv::Scalar(40, 140, 40), true, {}, {}};
+  csim_series[2] = {"levels + detail", cv::Scalar(40, 60, 210), false, {}, {}};
   for (size_t i = 0; i < rows.size(); ++i) {
     const Row& r = rows[i];
-    const size_t s = r.kind == kLevelRow ? 0 : 1;
+    const size_t s = r.detail ? 2 : r.kind == kLevelRow ? 0 : 1;
     const double x = Mean(r.reconstruct_s);
-    const std::string label = r.kind == kLevelRow ? r.name : std::to_string(r.steps);
+    const std::string label = r.kind == "sweep" ? std::to_string(r.steps) : r.name;
     psnr_series[s].points.push_back({x, Mean(r.psnr)});
     psnr_series[s].names.push_back(label);
     std::vector<double> csims;

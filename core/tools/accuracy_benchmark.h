@@ -11,6 +11,10 @@
 //                        the person matte;
 //   CSIM at yaw +-30     fr_feature cosine similarity of the renders turned 30 degrees either way
 //                        (CameraForView about C_s) against the source portrait (FaceMetrics).
+// With --detail head (the default) or face, every quality level gets a twin row "LEVEL + detail":
+// the same avatar and render settings finished by the photo's detail path (DetailFrameSource
+// over the network frames, built from the dataset record's crop and morphable fit), frames at the
+// comparison size; its reconstruct seconds add the detail path's bake (the source-view depth).
 // Refinement depends only on the steps, so each distinct step count is run once per portrait and
 // shared by every row that asks for it. Outputs in OUT (atomically): accuracy.md (table),
 // accuracy.json (means and per-portrait values) and accuracy.png (accuracy against seconds).
@@ -43,6 +47,8 @@ struct AccuracyBenchmarkOptions {
   bool perceptual = true;
   // Compute CSIM (face detection, landmarks and fr_feature on every turned render).
   bool face_metrics = true;
+  // Detail path of the "+ detail" rows: head, face, or off (no such rows).
+  std::string detail = "head";
   // Folder with the installed data ("" = AVATAR_DATA_DIR, then the default cache).
   std::string data_dir;
   // LibTorch threads as the command line gives them (0 = the configured default).
@@ -59,6 +65,7 @@ struct AccuracyBenchmarkOptions {
     v("yaw", yaw, "Head turn of the CSIM renders in degrees (+yaw and -yaw)");
     v("perceptual", perceptual, "Compute the perceptual distance (MobileNetV2 features)");
     v("face_metrics", face_metrics, "Compute CSIM at the turned views");
+    v("detail", detail, "Detail path of the '+ detail' twin of every quality level: head, face, or off (no twins)");
   }
 
   // The refinement steps of the sweep. Throws InvalidOptions.

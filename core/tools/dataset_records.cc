@@ -1,8 +1,10 @@
 #include "core/tools/dataset_records.h"
 
 #include <algorithm>
+#include <map>
 
 #include "core/io/image_io.h"
+#include "core/io/json_file.h"
 #include "core/tools/synthetic_head.h"
 #include "core/util/error.h"
 
@@ -49,6 +51,38 @@ face::AlignedPortrait RecordPortrait(const std::filesystem::path& dir, const nlo
   AVATAR_CHECK_INPUT(p.matte.size() == p.image_unmatted.size() && p.eye_mouth_mask.size() == p.image_unmatted.size())
       << id << ": the stored crop, matte and eye/mouth mask differ in size: rebuild the dataset";
   return p;
+}
+
+SplitPairRecords LoadSplitPairRecords(const std::filesystem::path& dir, const std::string& split,
+                                      int64_t expected_pairs) {
+  SplitPairRecords b;
+  const std::filesystem::path records = dir / "records.json", pairs = dir / "pairs.json";
+  if (!std::filesystem::exists(records) || !std::filesystem::exists(pairs)) {
+    b.why = "the dataset has no records.json / pairs.json (the morphable fits)";
+    return b;
+  }
+  b.records = ReadJsonFile(records, "rebuild the dataset");
+  const nlohmann::json p = ReadJsonFile(pairs, "rebuild the dataset");
+  AVATAR_CHECK_INPUT(b.records.is_array() && p.is_array()) << records.string() << " / " << pairs.string()
+                                                           << " must hold JSON arrays";
+  std::map<std::string, size_t> by_id;
+  for (size_t i = 0; i < b.records.size(); ++i) {
+    const nlohmann::json& r = b.records[i];
+    if (r.is_object() && r.value("split", "") == split) by_id[r.value("id", "")] = i;
+  }
+  for (const auto& e : p) {
+    const auto s = by_id.find(e.value("source", "")), t = by_id.find(e.value("target", ""));
+    if (s == by_id.end() || t == by_id.end()) continue;
+    b.pairs.emplace_back(s->second, t->second);
+  }
+  if (static_cast<int64_t>(b.pairs.size()) != expected_pairs) {
+    b.why = "records.json / pairs.json list " + std::to_string(b.pairs.size()) + " pairs of split '" + split +
+            "' but the shard has " + std::to_string(expected_pairs);
+    b.pairs.clear();
+    return b;
+  }
+  b.ok = true;
+  return b;
 }
 
 }  // namespace avatar

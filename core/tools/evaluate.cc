@@ -71,46 +71,6 @@ std::string Duration(double seconds) {
   return out.str();
 }
 
-// The dataset's records of one split's pairs, for the morphable baseline: the shard's pairs are
-// the pairs.json entries whose two frames are in the split, in file order (dataset_build_finish.cc).
-struct BaselineData {
-  bool ok = false;
-  std::string why;  // when !ok
-  std::vector<std::pair<size_t, size_t>> pairs;  // (source, target) indices into records
-  json records;
-};
-
-BaselineData LoadBaselineData(const fs::path& dir, const std::string& split, int64_t expected_pairs) {
-  BaselineData b;
-  const fs::path records = dir / "records.json", pairs = dir / "pairs.json";
-  if (!fs::exists(records) || !fs::exists(pairs)) {
-    b.why = "the dataset has no records.json / pairs.json (the morphable fits)";
-    return b;
-  }
-  b.records = ReadJsonFile(records, "rebuild the dataset");
-  const json p = ReadJsonFile(pairs, "rebuild the dataset");
-  AVATAR_CHECK_INPUT(b.records.is_array() && p.is_array()) << records.string() << " / " << pairs.string()
-                                                           << " must hold JSON arrays";
-  std::map<std::string, size_t> by_id;
-  for (size_t i = 0; i < b.records.size(); ++i) {
-    const json& r = b.records[i];
-    if (r.is_object() && r.value("split", "") == split) by_id[r.value("id", "")] = i;
-  }
-  for (const auto& e : p) {
-    const auto s = by_id.find(e.value("source", "")), t = by_id.find(e.value("target", ""));
-    if (s == by_id.end() || t == by_id.end()) continue;
-    b.pairs.emplace_back(s->second, t->second);
-  }
-  if (static_cast<int64_t>(b.pairs.size()) != expected_pairs) {
-    b.why = "records.json / pairs.json list " + std::to_string(b.pairs.size()) + " pairs of split '" + split +
-            "' but the shard has " + std::to_string(expected_pairs);
-    b.pairs.clear();
-    return b;
-  }
-  b.ok = true;
-  return b;
-}
-
 // The morphable preview of the source at the target camera with the target expression.
 class MorphableBaseline {
  public:
@@ -223,7 +183,7 @@ EvalScorers LoadEvalScorers(const EvaluateOptions& options, const torch::Device&
 struct EvalRows {
   std::vector<RowState> rows;
   std::unique_ptr<MorphableBaseline> baseline;
-  BaselineData records;
+  SplitPairRecords records;
 };
 
 EvalRows SetUpEvalRows(const EvaluateOptions& options, const ModelConfig& config, bool sr, int64_t split_pairs,
@@ -255,7 +215,7 @@ EvalRows SetUpEvalRows(const EvaluateOptions& options, const ModelConfig& config
     rows[0].row.available = false;
     rows[0].row.note = "off (--no-baseline)";
   } else {
-    table.records = LoadBaselineData(data_dir, options.split, split_pairs);
+    table.records = LoadSplitPairRecords(data_dir, options.split, split_pairs);
     if (!table.records.ok) {
       rows[0].row.available = false;
       rows[0].row.note = "not available: " + table.records.why;
@@ -335,7 +295,7 @@ BatchRenders RenderBatch(EvalLoop& loop, const std::vector<train::TrainSample>& 
                                    .align_corners(false))
                    .clamp(-1.0, 1.0);
   if (loop.table.baseline) {
-    const BaselineData& records = loop.table.records;
+    const SplitPairRecords& records = loop.table.records;
     std::vector<torch::Tensor> imgs;
     for (size_t i = begin; i < end; ++i) {
       const auto& [src, tgt] = records.pairs[loop.chosen[i]];

@@ -1,11 +1,13 @@
 // `avatar-studio bench accuracy` on a tiny random checkpoint and a tiny dataset built by the data
 // factory from three packaged photos (as eval_test.cc builds one): one table row per quality
-// level and per swept step count, each with finite metrics and positive times, refined rows
-// costing their refinement on top of the one-shot time, a plot that decodes, and clear errors
-// for a missing dataset or an unknown quality level.
+// level, its detail-path twin and per swept step count, each with finite metrics and positive
+// times, refined rows costing their refinement on top of the one-shot time, detail rows costing
+// their bake on top and showing the photo at its own view, a plot that decodes, and clear errors
+// for a missing dataset, an unknown quality level or detail path.
 
 #include <cmath>
 #include <filesystem>
+#include <iostream>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -57,7 +59,10 @@ TEST_F(BenchAccuracy, OneRowPerLevelAndSweptStepWithFiniteMetricsAndAPlot) {
   ASSERT_EQ(j["per_portrait"].size(), 2u);
   const std::string md = ReadFileBytes(out / "accuracy.md");
   std::vector<std::string> expected;
-  for (const auto& p : QualityLadder()) expected.push_back(p.name);
+  for (const auto& p : QualityLadder()) {
+    expected.push_back(p.name);
+    expected.push_back(p.name + " + detail");
+  }
   expected.push_back("refine 0");
   expected.push_back("refine 3");
   ASSERT_EQ(j["rows"].size(), expected.size());
@@ -97,6 +102,21 @@ TEST_F(BenchAccuracy, OneRowPerLevelAndSweptStepWithFiniteMetricsAndAPlot) {
       EXPECT_GT(rows[refined]["reconstruct_seconds"].get<double>(), one_shot) << refined;
     // Same planes and settings: the same source-view PSNR.
     EXPECT_EQ(rows["standard"]["psnr"], rows["refine 0"]["psnr"]);
+    // The detail twin: the same avatar plus the bake; at the source view it shows the photo
+    // itself, which the random network does not (measured +14..+19 dB over the random net).
+    for (const auto& level : QualityLadder()) {
+      const json& plain = rows[level.name];
+      const json& detail = rows[level.name + " + detail"];
+      EXPECT_GT(detail["reconstruct_seconds"].get<double>(), plain["reconstruct_seconds"].get<double>()) << level.name;
+      std::cout << level.name << ": PSNR (matte) " << plain["psnr_matte"] << " -> " << detail["psnr_matte"]
+                << " with detail\n";
+      EXPECT_GT(detail["psnr_matte"].get<double>(), plain["psnr_matte"].get<double>() + 10.0) << level.name;
+    }
+  }
+  for (const json& row : j["rows"]) {
+    const std::string name = row["name"];
+    const bool twin = name.find(" + detail") != std::string::npos;
+    EXPECT_EQ(row["detail"].get<std::string>(), twin ? "head" : "off") << name;
   }
   const cv::Mat plot = cv::imread((out / "accuracy.png").string());
   ASSERT_FALSE(plot.empty()) << "accuracy.png does not decode";
@@ -118,7 +138,7 @@ TEST_F(BenchAccuracy, ExpressionBasesCheckpointIsMeasuredWithTheDatasetsCoeffici
                         "--no-face-metrics --out '" + (out / "report").string() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
   const json j = json::parse(ReadFileBytes(out / "report" / "accuracy.json"));
-  ASSERT_EQ(j["rows"].size(), 2u);
+  ASSERT_EQ(j["rows"].size(), 3u);  // standard, standard + detail, refine 0
   for (const json& row : j["rows"]) {
     for (const char* k : {"psnr", "ssim", "frame_seconds"}) {
       ASSERT_TRUE(row[k].is_number()) << row["name"] << " " << k;
@@ -140,6 +160,9 @@ TEST_F(BenchAccuracy, BadInputsNameTheProblem) {
   const auto steps = Studio("bench accuracy " + Common() + " --refine-steps 5,x --out '" + out.path().string() + "'");
   EXPECT_EQ(steps.exit_code, 2) << steps.err;
   EXPECT_NE(steps.err.find("'x'"), std::string::npos) << steps.err;
+  const auto detail = Studio("bench accuracy " + Common() + " --detail sideways --out '" + out.path().string() + "'");
+  EXPECT_EQ(detail.exit_code, 2) << detail.err;
+  EXPECT_NE(detail.err.find("sideways"), std::string::npos) << detail.err;
 }
 
 }  // namespace
