@@ -1,4 +1,5 @@
 // avatar-studio live: an avatar driven live by a camera (or a video file played as one).
+#include <algorithm>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -8,6 +9,7 @@
 #include "core/pipeline/export.h"
 #include "core/pipeline/live.h"
 #include "core/pipeline/studio_backend.h"
+#include "core/tools/mouth_follow.h"
 #include "core/util/error.h"
 #include "core/util/progress_line.h"
 
@@ -17,6 +19,7 @@ struct LiveCommandOptions {
   std::string input;   // portrait photo or FILE.avatar
   std::string output;  // recording (.mp4), "" = none
   int size = 256;
+  bool mouth_follow = false;  // measure how the output's mouth follows the driver's, after the run
   LiveOptions live;
   BackendOptions backend;
   CommonOptions common;
@@ -25,6 +28,8 @@ struct LiveCommandOptions {
   void Visit(V&& v) {
     v("output", output, "Record the driven avatar to this MP4 (no audio)", 'o');
     v("size", size, "Side of the output frames");
+    v("mouth_follow", mouth_follow,
+      "After the run, measure how the avatar's mouth followed the driver's (face analysis of both, correlation)");
     live.Visit(v);
     backend.Visit(v);
     common.Visit(v);
@@ -63,6 +68,7 @@ int RunLiveImpl(LiveCommandOptions options, RunContext& ctx) {
   ProgressLine progress = ProgressLine::ForStderr();
   int64_t last_index = -1;
   ExportFrame held;
+  std::vector<cv::Mat> driver_frames, output_frames;  // --mouth-follow: every delivered pair
   const auto start = LiveClock::now();
   const LiveStats stats = RunLive(
       *source, *analyzer, camera, options.live,
@@ -79,6 +85,10 @@ int RunLiveImpl(LiveCommandOptions options, RunContext& ctx) {
           sink->Write(held);
         }
         last_index = info.capture_index;
+        if (options.mouth_follow) {
+          driver_frames.push_back(info.camera_bgr);
+          output_frames.push_back(frame.bgr);
+        }
         std::ostringstream line;
         const double t = std::chrono::duration<double>(LiveClock::now() - start).count();
         line << "live: camera frame " << info.capture_index << ", " << std::fixed << std::setprecision(0)
@@ -98,6 +108,24 @@ int RunLiveImpl(LiveCommandOptions options, RunContext& ctx) {
             << stats.ended << ". Rendered by " << source->Label();
   if (sink) std::cout << "; recorded to '" << options.output << "' (" << sink->FramesWritten() << " frames)";
   std::cout << ".\n";
+  if (options.mouth_follow) {
+    std::cerr << "live: measuring the mouth in " << driver_frames.size() << " driver and avatar frames...\n";
+    face::FaceMetricsOptions fo;
+    fo.data_dir = options.common.data_dir;
+    fo.expression = false;
+    const face::FaceMetrics faces(fo);
+    const MouthFollow m = MeasureMouthFollow(driver_frames, output_frames, faces, ctx);
+    auto range = [](const std::vector<double>& v) {
+      if (v.empty()) return std::string("-");
+      const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
+      std::ostringstream s;
+      s << std::fixed << std::setprecision(3) << *lo << ".." << *hi;
+      return s.str();
+    };
+    std::cout << "Mouth follow: correlation of the mouth opening, driver vs avatar, " << std::fixed
+              << std::setprecision(3) << m.correlation << " over " << m.measured << " of " << m.pairs
+              << " frames with a face in both (driver " << range(m.driver) << ", avatar " << range(m.output) << ").\n";
+  }
   return kExitOk;
 }
 

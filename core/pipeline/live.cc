@@ -199,6 +199,7 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
     if (stats.delivered == 0 && first == LiveClock::time_point{}) first = frame.captured;
     LiveFrameInfo info;
     info.capture_index = frame.index;
+    info.camera_bgr = frame.bgr;
     if (frame_size != cv::Size() && frame.bgr.size() != frame_size) {
       analyzer.Reset();  // the tracker's box belongs to the old resolution
       note(info, "The camera changed its resolution from " + std::to_string(frame_size.width) + "x" +

@@ -136,6 +136,7 @@ struct LiveFrameInfo {
   double render_ms = 0.0;       // the avatar's frame
   bool face_found = false;      // false: the last pose and expression are held
   DrivingSample sample;         // what drove the frame
+  cv::Mat camera_bgr;           // the camera frame that drove it (shared, not copied)
   std::string note;             // a change the user should be told about ("" = none)
 };
 

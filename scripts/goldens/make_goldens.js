@@ -3,12 +3,13 @@
 // TensorFlow.js itself (pure-JS CPU backend), so the C++ runtime (core/io/tfjs_graph) can be
 // checked against them. Inputs are synthetic float tensors (not images) so that image decoding
 // and resizing play no part in the comparison. nsfwjs's Keras layers model (MobileNetV2) is run
-// through tfjs-layers, and the outputs of chosen layers are written (core/model/mobilenet_v2).
+// through tfjs-layers, and the outputs of chosen layers are written (core/model/mobilenet_v2);
+// so is the ESRGAN-family x2 upscaler of @upscalerjs/esrgan-slim (core/model/keras_net).
 //
 // Usage: node make_goldens.js --models DIR --out DIR --deps DIR
 //   --deps: an npm prefix holding @tensorflow/tfjs-core, -backend-cpu, -converter and -layers (4.22.0).
 // Output: OUT/manifest.json and OUT/<model>.<tensor>.f32 (raw little-endian float32). The layers
-// model goes under manifest.layers_models (absent when nsfwjs is not installed).
+// models go under manifest.layers_models (each absent when its model is not installed).
 'use strict';
 const fs = require('fs');
 const path = require('path');
@@ -132,9 +133,49 @@ async function nsfwjsGoldens(manifest, seed) {
     fs.writeFileSync(path.join(outDir, file), Buffer.from(new Float32Array(values).buffer));
     entry.outputs.push({name: NSFWJS_TAPS[i], shape: outs[i].shape, file});
   }
-  manifest.layers_models = [entry];
+  manifest.layers_models = (manifest.layers_models || []).concat([entry]);
   tf.dispose([input, ...outs]);
   console.log(`goldens: nsfwjs done (${entry.outputs.map((o) => o.name + '[' + o.shape + ']').join(', ')})`);
+}
+
+// The esrgan-slim x2 upscaler: a plain model.json with a raw binary shard; its whole output for
+// a small fixed input in its own range (0..255).
+async function esrganGoldens(manifest, seed) {
+  const dir = path.join(modelsDir, 'esrgan-slim-x2');
+  const modelFile = path.join(dir, 'model.json');
+  if (!fs.existsSync(modelFile)) {
+    console.log(`goldens: ${modelFile} not installed (scripts/setup); esrgan-slim goldens skipped`);
+    return;
+  }
+  const artifacts = JSON.parse(fs.readFileSync(modelFile, 'utf8'));
+  const specs = [];
+  const buffers = [];
+  for (const group of artifacts.weightsManifest) {
+    for (const p of group.paths) buffers.push(fs.readFileSync(path.join(dir, p)));
+    specs.push(...group.weights);
+  }
+  const all = Buffer.concat(buffers);
+  const handler = {
+    load: async () => ({
+      modelTopology: artifacts.modelTopology,
+      weightSpecs: specs,
+      weightData: all.buffer.slice(all.byteOffset, all.byteOffset + all.byteLength),
+    }),
+  };
+  const model = await layers.loadLayersModel(handler);
+  const dims = [1, 20, 28, 3];
+  const data = fixedInput(dims, [0, 255], seed);
+  const input = tf.tensor(data, dims, 'float32');
+  const out = model.predict(input);
+  const entry = {name: 'esrgan-slim-x2', model: 'esrgan-slim-x2/model.json', inputs: [], outputs: []};
+  fs.writeFileSync(path.join(outDir, 'esrgan-slim-x2.input.f32'), Buffer.from(data.buffer));
+  entry.inputs.push({name: 'LR', shape: dims, file: 'esrgan-slim-x2.input.f32'});
+  const values = await out.data();
+  fs.writeFileSync(path.join(outDir, 'esrgan-slim-x2.SR.f32'), Buffer.from(new Float32Array(values).buffer));
+  entry.outputs.push({name: 'SR', shape: out.shape, file: 'esrgan-slim-x2.SR.f32'});
+  manifest.layers_models = (manifest.layers_models || []).concat([entry]);
+  tf.dispose([input, out]);
+  console.log(`goldens: esrgan-slim-x2 done (SR[${out.shape}])`);
 }
 
 async function main() {
@@ -167,6 +208,7 @@ async function main() {
     console.log(`goldens: ${m.name} done (${entry.outputs.map((o) => o.name + '[' + o.shape + ']').join(', ')})`);
   }
   await nsfwjsGoldens(manifest, seed++);
+  await esrganGoldens(manifest, seed++);
   fs.writeFileSync(path.join(outDir, 'manifest.json'), JSON.stringify(manifest, null, 1));
 }
 

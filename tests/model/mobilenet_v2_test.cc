@@ -1,5 +1,7 @@
 // MobileNetV2 from nsfwjs's Keras layers model: the loader (JS wrapper, base64, quantization,
 // bad files) and the network against TensorFlow.js goldens (scripts/goldens, fixture face/goldens).
+// The generic Keras graph runner (core/model/keras_net.h): a tiny graph against the same sums in
+// LibTorch, its refusals, and the esrgan-slim x2 upscaler against TensorFlow.js.
 
 #include "core/model/mobilenet_v2.h"
 
@@ -13,6 +15,7 @@
 #include "common/temp_dir.h"
 #include "core/io/data_paths.h"
 #include "core/io/keras_layers.h"
+#include "core/model/keras_net.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -179,6 +182,140 @@ TEST(MobileNetV2, MatchesTensorFlowJsGoldens) {
     worst = std::max(worst, rel);
   }
   std::cout << "[golden] nsfwjs worst relative error " << worst << "\n";
+}
+
+// A hand-made graph of every supported layer: in(3) -> c1 conv3x3 relu (4) -> c2 conv1x1 (3) ->
+// add(c2, in) -> concat(add, in) (6) -> up x2 -> c3 conv3x3 'same' (3) -> act tanh; the runner's
+// output against the same operations written out in LibTorch, with Keras' HWIO kernels.
+io::KerasLayersModel TinyKerasGraph() {
+  io::KerasLayersModel m;
+  m.path = "tiny-graph.json";
+  auto layer = [&](const std::string& name, const std::string& kind, json config, std::vector<std::string> in) {
+    m.layers.push_back({name, kind, std::move(config), std::move(in)});
+  };
+  layer("in", "InputLayer", {{"batch_input_shape", {nullptr, nullptr, nullptr, 3}}}, {});
+  layer("c1", "Conv2D", {{"kernel_size", {3, 3}}, {"strides", {1, 1}}, {"padding", "same"}, {"activation", "relu"}},
+        {"in"});
+  layer("c2", "Conv2D", {{"kernel_size", {1, 1}}, {"padding", "valid"}, {"activation", "linear"}, {"use_bias", false}},
+        {"c1"});
+  layer("sum", "Add", json::object(), {"c2", "in"});
+  layer("cat", "Concatenate", {{"axis", -1}}, {"sum", "in"});
+  layer("up", "UpSampling2D", {{"size", {2, 2}}, {"interpolation", "nearest"}}, {"cat"});
+  layer("c3", "Conv2D", {{"kernel_size", {3, 3}}, {"padding", "same"}, {"activation", "linear"}}, {"up"});
+  layer("out", "Activation", {{"activation", "tanh"}}, {"c3"});
+  torch::manual_seed(21);
+  m.weights["c1/kernel"] = torch::randn({3, 3, 3, 4});
+  m.weights["c1/bias"] = torch::randn({4});
+  m.weights["c2/kernel"] = torch::randn({1, 1, 4, 3});
+  m.weights["c3/kernel"] = torch::randn({3, 3, 6, 3}) * 0.2;
+  m.weights["c3/bias"] = torch::randn({3});
+  return m;
+}
+
+TEST(KerasNet, RunsEverySupportedLayerAsLibTorchDoes) {
+  const io::KerasLayersModel m = TinyKerasGraph();
+  const KerasNet net(m);
+  EXPECT_EQ(net.InputChannels(), 3);
+  EXPECT_EQ(net.Scale(), 2);
+  EXPECT_EQ(net.ParameterCount(), 3 * 3 * 3 * 4 + 4 + 4 * 3 + 3 * 3 * 6 * 3 + 3);
+  // Multiply-adds at 5 x 7: c1 and c2 at 5 x 7, c3 at 10 x 14.
+  EXPECT_DOUBLE_EQ(net.MultiplyAdds(5, 7), 35.0 * (3 * 3 * 3 * 4) + 35.0 * (4 * 3) + 140.0 * (3 * 3 * 6 * 3));
+  const torch::Tensor x = torch::rand({2, 3, 5, 7});
+  torch::NoGradGuard no_grad;
+  auto oihw = [&](const char* name) { return m.weights.at(name).permute({3, 2, 0, 1}); };
+  namespace F = torch::nn::functional;
+  const torch::Tensor c1 =
+      torch::relu(F::conv2d(x, oihw("c1/kernel"), F::Conv2dFuncOptions().bias(m.weights.at("c1/bias")).padding(1)));
+  const torch::Tensor sum = F::conv2d(c1, oihw("c2/kernel")) + x;
+  const torch::Tensor up = F::interpolate(torch::cat({sum, x}, 1), F::InterpolateFuncOptions()
+                                                                       .scale_factor(std::vector<double>{2.0, 2.0})
+                                                                       .mode(torch::kNearest));
+  const torch::Tensor want =
+      torch::tanh(F::conv2d(up, oihw("c3/kernel"), F::Conv2dFuncOptions().bias(m.weights.at("c3/bias")).padding(1)));
+  const torch::Tensor got = net.Forward(x);
+  ASSERT_EQ(got.sizes(), want.sizes());
+  EXPECT_LT((got - want).abs().max().item<double>(), 1e-5);
+  EXPECT_THROW(net.Forward(torch::rand({1, 4, 5, 7})), InvalidInput);
+  EXPECT_THROW(net.Forward(torch::rand({3, 5, 7})), InvalidInput);
+}
+
+TEST(KerasNet, RefusesWhatItCannotRunWhenBuilt) {
+  auto refused = [](io::KerasLayersModel m, const std::string& mention) {
+    try {
+      KerasNet net(m);
+      ADD_FAILURE() << "no ModelLoad; expected one mentioning " << mention;
+    } catch (const ModelLoad& e) {
+      EXPECT_NE(std::string(e.what()).find(mention), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("tiny-graph.json"), std::string::npos) << e.what();
+    }
+  };
+  io::KerasLayersModel m = TinyKerasGraph();
+  m.layers[2].class_name = "Dense";
+  refused(m, "'c2' (Dense)");
+  m = TinyKerasGraph();
+  m.layers[1].config["strides"] = {2, 2};
+  refused(m, "strides");
+  m = TinyKerasGraph();
+  m.layers[1].config["activation"] = "swish";
+  refused(m, "swish");
+  m = TinyKerasGraph();
+  m.layers[5].config["interpolation"] = "bilinear";
+  refused(m, "nearest");
+  m = TinyKerasGraph();
+  m.weights.erase("c3/bias");
+  EXPECT_THROW(KerasNet{m}, ModelLoad);
+  m = TinyKerasGraph();
+  m.weights["c1/kernel"] = torch::randn({5, 5, 3, 4});
+  refused(m, "kernel of the wrong shape");
+  m = TinyKerasGraph();
+  m.layers[3].inbound = {"c2", "later"};
+  refused(m, "'later'");
+  m = TinyKerasGraph();
+  m.layers.push_back({"dangling", "Activation", {{"activation", "relu"}}, {"c1"}});
+  m.layers.push_back({"tail", "Activation", {{"activation", "relu"}}, {"out"}});
+  EXPECT_THROW(KerasNet{m}, ModelLoad);  // 'dangling' is a second output
+}
+
+// The esrgan-slim x2 upscaler (installed by scripts/setup) against TensorFlow.js on the golden
+// input (0..255): the whole SR output.
+TEST(KerasNet, EsrganSlimMatchesTensorFlowJsGoldens) {
+  const fs::path dir = fs::path(AVATAR_BINARY_DIR) / "goldens";
+  const fs::path manifest_file = dir / "manifest.json";
+  ASSERT_TRUE(fs::exists(manifest_file)) << "no goldens at " << manifest_file
+                                         << ": the face/goldens fixture runs scripts/goldens/make_goldens.sh";
+  std::ifstream in(manifest_file);
+  const json manifest = json::parse(in);
+  const json* entry = nullptr;
+  if (manifest.contains("layers_models")) {
+    for (const json& e : manifest["layers_models"])
+      if (e["name"] == "esrgan-slim-x2") entry = &e;
+  }
+  ASSERT_NE(entry, nullptr) << "goldens lack esrgan-slim-x2 (not installed when they were made?): run scripts/setup, "
+                               "then ctest -R goldens";
+  auto read = [&](const json& t) {
+    const auto shape = t["shape"].get<std::vector<int64_t>>();
+    auto out = torch::zeros(shape, torch::kFloat32);
+    std::ifstream f(dir / t["file"].get<std::string>(), std::ios::binary);
+    f.read(reinterpret_cast<char*>(out.data_ptr<float>()), out.numel() * 4);
+    EXPECT_EQ(f.gcount(), out.numel() * 4) << t["file"];
+    return out.permute({0, 3, 1, 2}).contiguous();
+  };
+  const fs::path model = DataPaths::Resolve().Path("models/esrgan-slim-x2/model.json");
+  ASSERT_TRUE(fs::exists(model)) << model << " is missing: run scripts/setup (data version 3)";
+  const KerasNet net(io::LoadKerasLayersModel(model));
+  EXPECT_EQ(net.Scale(), 2);
+  EXPECT_EQ(net.InputChannels(), 3);
+  const torch::Tensor x = read((*entry)["inputs"][0]);
+  const torch::Tensor ref = read((*entry)["outputs"][0]);
+  torch::NoGradGuard no_grad;
+  const torch::Tensor got = net.Forward(x);
+  ASSERT_EQ(got.sizes(), ref.sizes());
+  const double err = (got - ref).abs().max().item<double>();
+  const double scale = ref.abs().max().item<double>();
+  std::cout << "[golden] esrgan-slim x2 " << ref.sizes() << ": max abs error " << err << " (max |ref| " << scale
+            << ")\n";
+  EXPECT_GT(scale, 10.0) << "the reference is nearly all zeros";
+  EXPECT_LT(err / scale, 1e-4);
 }
 
 TEST(MobileNetV2, ShapesFrozenAndTiming) {

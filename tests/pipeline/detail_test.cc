@@ -9,12 +9,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <iostream>
 #include <limits>
 
 #include <opencv2/imgproc.hpp>
 
 #include "core/compose/depth_detail.h"
 #include "core/compose/face_detail.h"
+#include "core/compose/upscaler.h"
 #include "core/face/face_geometry.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
@@ -868,6 +870,47 @@ TEST_F(Detail, TheNetworksFogOutsideThePersonIsCarved) {
   compose::DepthDetailOptions bad;
   bad.carve_matte = 2.0f;
   EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
+// The 256 -> 512 export step's upscalers (compose/upscaler.h): the installed esrgan-slim x2 keeps
+// a smooth picture (its colours and layout: close to bicubic, within a few grey levels) while
+// adding its own sharpening; any output size; clear errors for a bad name, a missing model and
+// a bad image. (The network itself is checked against TensorFlow.js in model/mobilenet_v2.)
+TEST(Upscaler, KeepsThePictureAndRefusesBadInput) {
+  cv::Mat img(40, 48, CV_8UC3);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x)
+      img.at<cv::Vec3b>(y, x) = cv::Vec3b(static_cast<uchar>(40 + 3 * x), static_cast<uchar>(200 - 4 * y),
+                                          static_cast<uchar>(100 + 40 * std::sin(x * 0.3) * std::cos(y * 0.2)));
+  const compose::ImageUpscaler bicubic("bicubic");
+  const compose::ImageUpscaler esrgan("esrgan-slim");
+  EXPECT_EQ(esrgan.name(), "esrgan-slim");
+  EXPECT_GT(esrgan.MultiplyAdds(48, 40), 1e6);
+  EXPECT_EQ(bicubic.MultiplyAdds(48, 40), 0.0);
+  const cv::Mat a = bicubic.Upscale(img, cv::Size(96, 80));
+  const cv::Mat b = esrgan.Upscale(img, cv::Size(96, 80));
+  ASSERT_EQ(b.size(), cv::Size(96, 80));
+  ASSERT_EQ(b.type(), CV_8UC3);
+  // Inside the border (the model pads with zeros there): mean difference to bicubic.
+  const cv::Rect inner(4, 4, 88, 72);
+  cv::Mat diff;
+  cv::absdiff(a(inner), b(inner), diff);
+  const cv::Scalar mean = cv::mean(diff);
+  std::cout << "esrgan-slim vs bicubic on a smooth image: mean abs difference " << mean << "\n";
+  for (int c = 0; c < 3; ++c) EXPECT_LT(mean[c], 6.0) << "channel " << c;
+  const cv::Mat odd = esrgan.Upscale(img, cv::Size(90, 75));
+  EXPECT_EQ(odd.size(), cv::Size(90, 75));
+  EXPECT_THROW(esrgan.Upscale(cv::Mat(), cv::Size(8, 8)), InvalidInput);
+  EXPECT_THROW(esrgan.Upscale(cv::Mat(8, 8, CV_8UC1, cv::Scalar(0)), cv::Size(16, 16)), InvalidInput);
+  EXPECT_THROW(esrgan.Upscale(img, cv::Size(0, 16)), InvalidInput);
+  EXPECT_THROW(compose::ImageUpscaler("lanczos9"), InvalidOptions);
+  testing::TempDir empty;
+  try {
+    compose::ImageUpscaler missing("esrgan-slim", empty.path().string());
+    ADD_FAILURE() << "no MissingData for an empty data folder";
+  } catch (const MissingData& e) {
+    EXPECT_NE(std::string(e.what()).find("scripts/setup"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

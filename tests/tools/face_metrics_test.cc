@@ -9,6 +9,7 @@
 
 #include "core/face/face_analyzer.h"
 #include "core/tools/face_metrics.h"
+#include "core/tools/mouth_follow.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
 #include "core/util/error.h"
@@ -125,6 +126,34 @@ TEST(FaceMetrics, MouthOpeningIsTheLipGapOverTheFaceHeight) {
   lm[152] = lm[10];
   EXPECT_THROW(MouthOpening(lm), InvalidInput);  // degenerate height
   EXPECT_THROW(MouthOpening(std::vector<cv::Point2f>(5)), InvalidInput);
+}
+
+// The correlation of live driving's mouth-follow figure, analytically.
+TEST(MouthFollow, PearsonCorrelationAnalytic) {
+  const std::vector<double> a = {1, 2, 3, 4};
+  EXPECT_NEAR(PearsonCorrelation(a, {2, 4, 6, 8}), 1.0, 1e-12);
+  EXPECT_NEAR(PearsonCorrelation(a, {8, 6, 4, 2}), -1.0, 1e-12);
+  // Deviations (-1.5,-.5,.5,1.5) and (-1.5,.5,-.5,1.5): 4 / sqrt(5 * 5).
+  EXPECT_NEAR(PearsonCorrelation(a, {1, 3, 2, 4}), 0.8, 1e-12);
+  EXPECT_TRUE(std::isnan(PearsonCorrelation(a, {5, 5, 5, 5})));  // constant
+  EXPECT_TRUE(std::isnan(PearsonCorrelation({1, 2}, {3, 4})));   // too short
+  EXPECT_THROW(PearsonCorrelation(a, {1, 2, 3}), InvalidInput);
+}
+
+// Pairs count only with a face in both frames; too few measured pairs give no correlation (NaN),
+// never a made-up one; unequal counts are refused.
+TEST(MouthFollow, OnlyPairsWithAFaceInBothCount) {
+  const cv::Mat face = Photo("samples/grace_hopper.jpg");
+  const cv::Mat blank(128, 128, CV_8UC3, cv::Scalar(90, 90, 90));
+  RunContext ctx;
+  const MouthFollow m = MeasureMouthFollow({face, blank, face, face}, {face, face, blank, face}, Metrics(), ctx);
+  EXPECT_EQ(m.pairs, 4);
+  EXPECT_EQ(m.measured, 2);
+  ASSERT_EQ(m.driver.size(), 2u);
+  EXPECT_NEAR(m.driver[0], m.output[0], 1e-9);  // the same image on both sides
+  EXPECT_GE(m.driver[0], 0.0);
+  EXPECT_TRUE(std::isnan(m.correlation));
+  EXPECT_THROW(MeasureMouthFollow({face}, {}, Metrics(), ctx), InvalidInput);
 }
 
 TEST(FaceMetrics, BlankNoiseAndEmptyImagesAreNoFaceNotErrors) {
