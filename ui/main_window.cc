@@ -9,6 +9,7 @@
 #include <QDropEvent>
 #include <QFileDialog>
 #include <QFileInfo>
+#include <QInputDialog>
 #include <QLabel>
 #include <QMenu>
 #include <QMenuBar>
@@ -25,6 +26,7 @@
 
 #include "core/io/image_io.h"
 #include "core/io/video_io.h"
+#include "core/pipeline/live.h"
 #include "core/pipeline/session_source.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
@@ -33,6 +35,7 @@
 #include "ui/export_dialog.h"
 #include "ui/image_convert.h"
 #include "ui/job_runner.h"
+#include "ui/live_worker.h"
 #include "ui/panels.h"
 #include "ui/preview_worker.h"
 #include "ui/viewport.h"
@@ -80,6 +83,23 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
   viewport_ = new Viewport(this);
   setCentralWidget(viewport_);
   preview_ = new PreviewWorker(this);
+  live_ = new LiveWorker(this);
+  connect(live_, &LiveWorker::frameReady, this, &MainWindow::onLiveFrame);
+  connect(live_, &LiveWorker::noteReady, this, [this](const QString& note) {
+    if (live_active_) status_label_->setText(tr("Live: %1").arg(note));
+  });
+  connect(live_, &LiveWorker::ended, this, [this](const QString& summary, bool failed) {
+    const bool was_active = live_active_;
+    live_active_ = false;
+    stop_live_action_->setEnabled(false);
+    if (failed) {
+      showError(tr("Live"), summary);
+    } else {
+      status_label_->setText(summary);
+    }
+    if (was_active || failed) requestPreview();  // the sliders' frame again
+    emit liveEnded(summary);
+  });
   jobs_ = new JobRunner(this);
   play_timer_ = new QTimer(this);
   createPanels();
@@ -354,6 +374,14 @@ void MainWindow::createMenus() {
   back->setShortcut(QKeySequence(Qt::Key_BracketLeft));
   QAction* forward = drive->addAction(tr("Step &Forward"), this, [this] { stepDriver(1); });
   forward->setShortcut(QKeySequence(Qt::Key_BracketRight));
+  drive->addSeparator();
+  QAction* live = drive->addAction(tr("&Live from Camera..."), this, &MainWindow::showLiveDialog);
+  live->setShortcut(QKeySequence(tr("Ctrl+Shift+L")));
+  live->setToolTip(tr("Drive the avatar from a camera (or a video file played as one): head pose and expression "
+                      "follow the face in front of it, relative to the first frame with a face"));
+  stop_live_action_ = drive->addAction(tr("&Stop Live"), this, &MainWindow::stopLive);
+  stop_live_action_->setToolTip(tr("End the live session (Esc does too)"));
+  stop_live_action_->setEnabled(false);
 
   QMenu* help = menuBar()->addMenu(tr("&Help"));
   help->addAction(tr("&About Avatar Studio"), this, &MainWindow::showAbout);
@@ -491,6 +519,7 @@ bool MainWindow::reconstruct() {
 }
 
 void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
+  if (live_active_) stopLive();  // the live session drove the avatar being replaced
   source_ = std::move(source);
   preview_->setSource(source_);
   if (source_) {
@@ -506,7 +535,7 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
 }
 
 void MainWindow::requestPreview() {
-  if (!source_) return;
+  if (!source_ || live_active_) return;  // while live, the camera drives the viewport
   PreviewRequest r;
   // The user's view offset; the worker composes it with the source's pose and the driver's
   // (ComposeFrame, as exports do).
@@ -610,6 +639,7 @@ void MainWindow::showExportDialog() {
 }
 
 void MainWindow::cancelJob() {
+  if (live_active_) stopLive();
   if (!jobs_->isBusy()) return;
   stage_label_->setText(tr("cancelling..."));
   jobs_->cancel();
@@ -682,7 +712,87 @@ void MainWindow::dropEvent(QDropEvent* event) {
   }
 }
 
+void MainWindow::showLiveDialog() {
+  if (!source_) {
+    showError(tr("Live"), tr("Open and reconstruct a portrait first: live driving moves its avatar."));
+    return;
+  }
+  const std::vector<std::string> cameras = ListCameras();
+  QStringList items;
+  for (const auto& c : cameras) items << QString::fromStdString(c);
+  const QString from_file = tr("A video file, played as a camera...");
+  items << from_file;
+  QString choice = from_file;
+  if (dialogs_enabled_) {
+    const QString label = cameras.empty()
+                              ? tr("No camera was found on this machine (no /dev/video* device opens).\n"
+                                   "Connect one and choose Live again, or play a video file as a camera:")
+                              : tr("Camera to drive the avatar:");
+    bool ok = false;
+    choice = QInputDialog::getItem(this, tr("Live from Camera"), label, items, 0, false, &ok);
+    if (!ok) return;
+  } else if (!cameras.empty()) {
+    choice = items.front();
+  }
+  if (choice == from_file) {
+    if (!dialogs_enabled_) {
+      showError(tr("Live"), tr("No camera was found on this machine (no /dev/video* device opens)."));
+      return;
+    }
+    choice = QFileDialog::getOpenFileName(this, tr("Video to Play as a Camera"), QString(),
+                                          tr("Videos (*.mp4 *.avi *.mov *.mkv *.webm);;All files (*)"));
+    if (choice.isEmpty()) return;
+  }
+  startLive(choice);
+}
+
+bool MainWindow::startLive(const QString& camera) {
+  if (!source_) {
+    showError(tr("Live"), tr("Open and reconstruct a portrait first: live driving moves its avatar."));
+    return false;
+  }
+  stopLive();
+  driving_panel_->setPlaying(false);
+  LiveOptions o;
+  o.camera = camera.toStdString();
+  o.width = o.height = 256;
+  o.driving = driving_panel_->options();
+  o.follow_pose = driving_panel_->followPose();
+  try {
+    live_->start(source_, DrivingAnalyzers(backendOptions()), o.camera, o);
+  } catch (const std::exception& e) {
+    showError(tr("Live"), QString::fromUtf8(e.what()));
+    return false;
+  }
+  live_active_ = true;
+  stop_live_action_->setEnabled(true);
+  last_error_.clear();
+  status_label_->setText(tr("Live: driven by %1 (Esc or Driving > Stop Live ends it).").arg(camera));
+  return true;
+}
+
+void MainWindow::stopLive() {
+  if (live_ == nullptr) return;
+  live_active_ = false;
+  live_->stop();
+}
+
+void MainWindow::onLiveFrame(const LiveFrame& frame) {
+  if (!live_active_) return;  // queued before the session stopped
+  last_frame_ = frame.image;
+  last_alpha_ = QImage();
+  viewport_->setImage(frame.image);
+  viewport_->setOverlay({}, {}, {});
+  frame_time_label_->setText(tr("Live: %1 fps, %2 ms from capture (render %3 ms)")
+                                 .arg(frame.fps, 0, 'f', 1)
+                                 .arg(frame.latency_ms, 0, 'f', 0)
+                                 .arg(frame.render_ms, 0, 'f', 0));
+  driving_panel_->setDriverImage(frame.camera, frame.face_found);
+  emit liveFrameShown(frame.capture_index);
+}
+
 void MainWindow::closeEvent(QCloseEvent* event) {
+  stopLive();
   QSettings settings;
   settings.setValue(kGeometryKey, saveGeometry());
   settings.setValue(kStateKey, saveState());

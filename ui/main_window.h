@@ -35,6 +35,8 @@ class ExpressionPanel;
 class JobRunner;
 class PosePanel;
 class PreviewWorker;
+class LiveWorker;
+struct LiveFrame;
 struct PreviewFrame;
 class SourcePanel;
 class Viewport;
@@ -68,8 +70,18 @@ class MainWindow : public QMainWindow {
   bool startExport(const ExportOptions& output, const AnimationPlan& plan);
   // Asks for export settings, then starts the export.
   void showExportDialog();
-  // Cancels the running job (reconstruction or export).
+  // Cancels the running job (reconstruction or export), and a live session.
   void cancelJob();
+
+  // Live driving (issue 34): the current avatar driven by `camera` (a device index, /dev/videoN,
+  // or a video file played as a camera) at 256 px, with the driving panel's transfer options.
+  // The camera's frames show in the driving panel, the avatar's in the viewport; sliders and the
+  // driving video rest while it runs. False (with the reason shown) without an avatar or when
+  // the camera does not open. Driving > Live from Camera asks for the camera.
+  bool startLive(const QString& camera);
+  // Ends the live session (no-op when none runs).
+  void stopLive();
+  bool isLive() const { return live_active_; }
 
   // The neural model checkpoint to use ("" = the installed or bundled default).
   void setCheckpoint(const QString& path);
@@ -115,6 +127,10 @@ class MainWindow : public QMainWindow {
   void exportFinished(const QString& path, qint64 frames);
   void exportFailed(const QString& message);
   void exportCancelled();
+  // A live frame was shown (its camera frame number).
+  void liveFrameShown(qint64 capture_index);
+  // The live session ended (summary: frames, fps, latency and why).
+  void liveEnded(const QString& summary);
 
  protected:
   void dragEnterEvent(QDragEnterEvent* event) override;
@@ -129,6 +145,8 @@ class MainWindow : public QMainWindow {
   void addRecentFile(const QString& path);
   void showOpenDialog();
   void showOpenDriverDialog();
+  void showLiveDialog();
+  void onLiveFrame(const LiveFrame& frame);
   void showAbout();
   void showError(const QString& title, const QString& message);
   void setFrameSource(std::shared_ptr<const FrameSource> source);
@@ -152,6 +170,9 @@ class MainWindow : public QMainWindow {
   ExpressionPanel* expression_panel_ = nullptr;
   DrivingPanel* driving_panel_ = nullptr;
   PreviewWorker* preview_ = nullptr;
+  LiveWorker* live_ = nullptr;
+  bool live_active_ = false;
+  QAction* stop_live_action_ = nullptr;
   JobRunner* jobs_ = nullptr;
   QTimer* play_timer_ = nullptr;
   QMenu* recent_menu_ = nullptr;

@@ -20,7 +20,8 @@ void DrivingOptions::Validate() const {
       << "--smoothing must be within [0,1), got " << smoothing;
 }
 
-DrivingSample DrivingTransfer::Apply(const FrameMeasurement& m, bool smooth) {
+DrivingSample DrivingTransfer::Apply(const FrameMeasurement& m, bool smooth, int64_t frames_elapsed) {
+  AVATAR_CHECK_INPUT(frames_elapsed >= 1) << "frames_elapsed must be >= 1, got " << frames_elapsed;
   DrivingSample s;
   s.face_found = m.face_found;
   s.pose = m.pose;
@@ -35,7 +36,7 @@ DrivingSample DrivingTransfer::Apply(const FrameMeasurement& m, bool smooth) {
   }
   if (smooth && previous_.has_value() && options_.smoothing > 0.0) {
     // Exponential moving average: causal, so it streams with the export.
-    const double a = options_.smoothing;
+    const double a = std::pow(options_.smoothing, static_cast<double>(std::min<int64_t>(frames_elapsed, 1000)));
     auto blend = [a](double prev, double now) { return a * prev + (1.0 - a) * now; };
     s.pose.yaw = blend(previous_->pose.yaw, s.pose.yaw);
     s.pose.pitch = blend(previous_->pose.pitch, s.pose.pitch);

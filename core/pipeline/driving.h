@@ -78,8 +78,12 @@ class DrivingTransfer {
   // Sets the neutral reference (relative mode).
   void SetNeutral(const FrameMeasurement& neutral) { neutral_ = neutral; }
   const std::optional<FrameMeasurement>& Neutral() const { return neutral_; }
-  // The sample for `m`; with `smooth` the previous output is blended in (sequential use).
-  DrivingSample Apply(const FrameMeasurement& m, bool smooth);
+  // The sample for `m`; with `smooth` the previous output is blended in (sequential use). The
+  // smoothing is per driver frame: when `frames_elapsed` driver frames passed since the previous
+  // sample (live driving drops the frames the avatar cannot keep up with), the previous sample
+  // weighs smoothing^frames_elapsed, so the lag in seconds does not grow on a slower machine.
+  // Throws InvalidInput for frames_elapsed < 1.
+  DrivingSample Apply(const FrameMeasurement& m, bool smooth, int64_t frames_elapsed = 1);
   // Forgets the smoothing history (after a seek).
   void ResetHistory() { previous_.reset(); }
 

@@ -170,6 +170,7 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
   DrivingSample last;  // held while no face is seen (the source's own pose and expression at first)
   last.face_found = false;
   bool have_sample = false, face_was_found = true;
+  int64_t last_sampled_index = -1;  // camera index of the frame that gave `last`
   cv::Size frame_size;
   std::vector<double> latencies, analyse_ms, render_ms;
   LiveClock::time_point first{}, last_delivered{};
@@ -215,7 +216,10 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
         transfer.SetNeutral(m);  // the automatic neutral reference: the first face seen
         note(info, "Neutral reference: camera frame " + std::to_string(frame.index) + ".");
       }
-      last = transfer.Apply(m, have_sample);
+      // Smoothing per camera frame: the frames dropped since the last sample count.
+      const int64_t elapsed = last_sampled_index >= 0 ? std::max<int64_t>(1, frame.index - last_sampled_index) : 1;
+      last = transfer.Apply(m, have_sample, elapsed);
+      last_sampled_index = frame.index;
       have_sample = true;
       if (!face_was_found && stats.delivered > 0) note(info, "The face is back.");
       face_was_found = true;

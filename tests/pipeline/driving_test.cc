@@ -99,6 +99,14 @@ TEST(DrivingTransfer, SmoothingIsAnExponentialAverage) {
   EXPECT_FLOAT_EQ(t.Apply(m, true).expression.coefficients[0], 0.75f);
   t.ResetHistory();
   EXPECT_FLOAT_EQ(t.Apply(m, true).expression.coefficients[0], 1.0f);
+  // Per driver frame: after 3 frames (2 dropped) the previous sample weighs 0.5^3, as three
+  // single steps towards a constant input would leave it.
+  t.ResetHistory();
+  m.coefficients = {0.0f};
+  t.Apply(m, true);
+  m.coefficients = {1.0f};
+  EXPECT_FLOAT_EQ(t.Apply(m, true, 3).expression.coefficients[0], 1.0f - 0.125f);
+  EXPECT_THROW(t.Apply(m, true, 0), InvalidInput);
   // A step input converges to the target and never overshoots.
   DrivingOptions heavy = o;
   heavy.smoothing = 0.9;

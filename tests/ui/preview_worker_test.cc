@@ -5,6 +5,7 @@
 // LibTorch (via the morphable model, in common/synthetic_studio.h) first: Qt's `slots` macro breaks its headers.
 #include "common/synthetic_studio.h"
 
+#include <QCheckBox>
 #include <QDeadlineTimer>
 #include <QSettings>
 #include <QSignalSpy>
@@ -30,6 +31,7 @@
 #include "ui/panels.h"
 #include "ui/preview_worker.h"
 #include "ui/studio.h"
+#include "ui/viewport.h"
 
 namespace avatar::ui {
 namespace {
@@ -356,6 +358,81 @@ class PreviewWorkerTest : public QObject {
     const int64_t used = w.drivingPanel()->options().neutral_frame;
     QVERIFY2(used >= 20 && used < 24, qPrintable(QString::number(used)));
     QVERIFY2(w.statusText().contains(QStringLiteral("using frame %1").arg(used)), qPrintable(w.statusText()));
+  }
+
+  // Live driving in the studio (issue 34). Without an avatar, and with a camera that does not
+  // exist, a clear error and no session; a video played as a camera drives the morphable
+  // preview: frames reach the viewport and the camera's frames the driving panel, the status
+  // says live and what drives it, sliders do not interrupt, and when the clip ends the session
+  // ends by itself with its summary and the sliders' frame comes back.
+  void liveDrivesTheAvatarFromAVideoPlayedAsACamera() {
+    MainWindow w;
+    w.setDialogsEnabled(false);
+    w.show();
+    QVERIFY(QTest::qWaitForWindowExposed(&w));
+    QVERIFY(!w.startLive(QStringLiteral("0")));
+    QVERIFY2(w.lastError().contains(QStringLiteral("portrait first")), qPrintable(w.lastError()));
+    QVERIFY(!w.isLive());
+
+    w.sourcePanel()->morphablePreviewBox()->setChecked(true);  // the fast renderer
+    QSignalSpy done(&w, &MainWindow::reconstructionFinished);
+    const QString portrait =
+        QString::fromStdString(DataPaths::Resolve().Require("samples/franck_01829.jpg", "a sample portrait").string());
+    QVERIFY(w.openPortrait(portrait, false));
+    QVERIFY(w.reconstruct());
+    QVERIFY(done.wait(180000));
+
+    QVERIFY(!w.startLive(QStringLiteral("/no/such/camera.mp4")));
+    QVERIFY2(w.lastError().contains(QStringLiteral("camera.mp4")), qPrintable(w.lastError()));
+    QVERIFY(!w.isLive());
+
+    QTemporaryDir dir;
+    const QString clip = MakeClip(dir, QStringLiteral("drive.mp4"), 30, "0");  // 3 s at 10 fps
+    QVERIFY2(!clip.isEmpty(), "ffmpeg could not make the test clip");
+    QSignalSpy frames(&w, &MainWindow::liveFrameShown);
+    QSignalSpy ended(&w, &MainWindow::liveEnded);
+    QVERIFY2(w.startLive(clip), qPrintable(w.lastError()));
+    QVERIFY(w.isLive());
+    QVERIFY2(w.statusText().startsWith(QStringLiteral("Live")), qPrintable(w.statusText()));
+    QVERIFY(frames.wait(60000));
+    w.expressionPanel()->resetToNeutral();  // a slider move while live: no preview request
+    QVERIFY(ended.wait(60000));
+    const QString summary = ended.first().at(0).toString();
+    qInfo("live: %lld frames shown; %s", static_cast<long long>(frames.count()), qPrintable(summary));
+    QVERIFY2(summary.contains(QStringLiteral("the video ended")), qPrintable(summary));
+    QVERIFY(frames.count() >= 3);
+    QVERIFY(!w.isLive());
+    QVERIFY(!w.viewport()->image().isNull());
+    QCOMPARE(w.viewport()->image().width(), 256);
+    w.sourcePanel()->morphablePreviewBox()->setChecked(false);  // a persisted setting: restore it
+  }
+
+  // Stopping a live session (Esc, Driving > Stop Live) ends it at once: no frame after it, the
+  // status says it stopped.
+  void stoppingLiveEndsItAtOnce() {
+    MainWindow w;
+    w.setDialogsEnabled(false);
+    w.sourcePanel()->morphablePreviewBox()->setChecked(true);
+    QSignalSpy done(&w, &MainWindow::reconstructionFinished);
+    const QString portrait =
+        QString::fromStdString(DataPaths::Resolve().Require("samples/franck_01829.jpg", "a sample portrait").string());
+    QVERIFY(w.openPortrait(portrait, false));
+    QVERIFY(w.reconstruct());
+    QVERIFY(done.wait(180000));
+    const QString clip =
+        QString::fromStdString(DataPaths::Resolve().Require("samples/cap13_edit2.mp4", "a sample clip").string());
+    QSignalSpy frames(&w, &MainWindow::liveFrameShown);
+    QSignalSpy ended(&w, &MainWindow::liveEnded);
+    QVERIFY(w.startLive(clip));
+    QVERIFY(frames.wait(60000));
+    w.cancelJob();  // what Esc does
+    QVERIFY(!w.isLive());
+    const int shown = frames.count();
+    QTest::qWait(500);
+    QCOMPARE(frames.count(), shown);
+    QVERIFY(ended.count() == 1 || ended.wait(5000));
+    QVERIFY2(ended.first().at(0).toString().contains(QStringLiteral("stopped")), qPrintable(ended.first().at(0).toString()));
+    w.sourcePanel()->morphablePreviewBox()->setChecked(false);  // a persisted setting: restore it
   }
 
   void badDriverIsReportedNotThrown() {
