@@ -17,13 +17,17 @@
 // difference of the 8-bit images, in [0,1] units).
 // Then the detail path (core/pipeline/detail_source.h) as the studio's frame sources render it: the
 // network alone, the detail on the face and on the head, at 256^2 and 512^2 output, over an orbit
-// of half the yaw range, with the one-time bake of the head detail.
+// of half the yaw range, with the one-time bake of the head detail. Last, the studio's expression
+// sliders with the head detail (a sweep of jawOpen, smile and blinkLeft): the first updated frame
+// (the quick frame over the kept network frame) and the refined one (quick + full), against 100
+// and 400 ms.
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -260,7 +264,51 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
     }
   }
   std::cout << "\nOrbit of the detail rows: " << options.frames << " views over +-" << Fixed(options.yaw_range / 2.0, 0)
-            << " deg about the portrait's pose.\nPeak RSS " << Fixed(PeakRssMb(), 0) << " MB." << std::endl;
+            << " deg about the portrait's pose.\n";
+
+  // An expression slider in the studio (the preview worker's schedule): at an unchanged view a new
+  // expression is first composed over the last network frame (RenderQuick: no network call),
+  // then the full frame follows. Each step a new jawOpen value (never cached).
+  constexpr double kFirstGoalMs = 100.0, kRefinedGoalMs = 400.0;
+  std::cout << "\nExpression changes in the studio with the head detail (first frame = the quick frame; refined = "
+               "quick + full frame, as the viewport shows them; "
+            << options.expressions << " new expressions per size, sweeping jawOpen, smile and blinkLeft in turn):\n\n"
+            << "| output | first updated frame (median ms) | vs 100 ms goal | refined frame (median ms) | vs 400 ms goal "
+               "| full frame alone (median ms) |\n"
+            << "|---|---|---|---|---|---|\n";
+  // A scripted sweep of three controls (jawOpen, smile, blinkLeft when the portrait has them).
+  std::vector<std::string> sliders;
+  for (const char* name : {"jawOpen", "smile", "blinkLeft"}) {
+    if (std::find(controls.begin(), controls.end(), name) != controls.end()) sliders.push_back(name);
+  }
+  if (sliders.empty()) sliders.push_back(control);
+  int step = 0;
+  for (const int size : {256, 512}) {
+    FrameRequest request;
+    request.view = paths.network->SourcePose();
+    request.view.yaw += 10.0;
+    request.width = request.height = size;
+    paths.detail->Render(request, quiet);  // the view's network frame, kept
+    std::vector<double> first, refined, full;
+    for (int e = 0; e < options.expressions; ++e) {
+      ctx.ThrowIfCancelled();
+      ++step;
+      request.expression.controls[sliders[static_cast<size_t>(step) % sliders.size()]] =
+          0.05f + 0.9f * static_cast<float>(step) / (2.0f * options.expressions);
+      Timer timer;
+      const std::optional<RenderedFrame> quick = paths.detail->RenderQuick(request, quiet);
+      AVATAR_CHECK_INPUT(quick.has_value()) << "the detail path kept no frame of this view";
+      first.push_back(timer.Milliseconds());
+      Timer full_timer;
+      paths.detail->Render(request, quiet);
+      full.push_back(full_timer.Milliseconds());
+      refined.push_back(timer.Milliseconds());
+    }
+    std::cout << "| " << size << "^2 | " << Fixed(Median(first), 1) << " | " << Ratio(Median(first) / kFirstGoalMs)
+              << " | " << Fixed(Median(refined), 1) << " | " << Ratio(Median(refined) / kRefinedGoalMs) << " | "
+              << Fixed(Median(full), 1) << " |\n";
+  }
+  std::cout << "\nPeak RSS " << Fixed(PeakRssMb(), 0) << " MB." << std::endl;
   return kExitOk;
 }
 

@@ -553,12 +553,22 @@ void MainWindow::requestPreview() {
 void MainWindow::onFrame(const PreviewFrame& frame) {
   last_frame_ = frame.image;
   last_alpha_ = frame.alpha;
-  last_shown_ = frame.serial;
+  if (frame.stages.isEmpty()) last_shown_ = frame.serial;
   last_driver_frame_ = frame.driver_frame;
   viewport_->setImage(frame.image);
   viewport_->setOverlay(frame.landmarks, frame.vertices, frame.triangles);
-  frame_time_label_->setText(tr("Frame: %1 ms").arg(frame.milliseconds, 0, 'f', 1));
+  // Which stages ran: a quick frame (the face at the new expression over the last network
+  // frame) is followed by the full one.
+  frame_time_label_->setText(frame.stages.isEmpty()
+                                 ? tr("Frame: %1 ms (full frame)").arg(frame.milliseconds, 0, 'f', 1)
+                                 : tr("Frame: %1 ms (%2; the full frame follows)")
+                                       .arg(frame.milliseconds, 0, 'f', 1)
+                                       .arg(frame.stages));
   if (frame.driver_frame >= 0) driving_panel_->setDriverImage(frame.driver_image, frame.driver_face_found);
+  if (!frame.stages.isEmpty()) {
+    emit quickFrameShown(frame.serial);
+    return;  // the request is answered by its full frame
+  }
   emit frameShown(frame.serial);
 }
 

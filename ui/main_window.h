@@ -122,8 +122,11 @@ class MainWindow : public QMainWindow {
   void reconstructionFailed(const QString& message);
   void driverLoaded(const QString& path);
   void driverFailed(const QString& path, const QString& message);
-  // A viewport frame was shown (answering request `serial`).
+  // A viewport frame was shown (the full frame answering request `serial`).
   void frameShown(quint64 serial);
+  // A quick frame was shown first (an expression change: the face at once, the full frame of
+  // the same serial follows unless a newer request pre-empts it).
+  void quickFrameShown(quint64 serial);
   void exportFinished(const QString& path, qint64 frames);
   void exportFailed(const QString& message);
   void exportCancelled();

@@ -131,6 +131,13 @@ void PreviewWorker::drain() {
     }
     if (!source) continue;
     try {
+      if (std::optional<PreviewFrame> quick = renderQuick(next, source)) {
+        quick->serial = serial;
+        ++quick_;
+        emit frameReady(*quick);
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (pending_.has_value()) continue;  // a newer request: its frame, not this one's full frame
+      }
       PreviewFrame frame = renderOne(next, source);
       frame.serial = serial;
       ++rendered_;
@@ -139,6 +146,41 @@ void PreviewWorker::drain() {
       emit renderFailed(QString::fromStdString(e.what()));
     }
   }
+}
+
+namespace {
+
+// A rendered frame as the viewport takes it (the time is filled in by the caller).
+PreviewFrame ToPreview(const RenderedFrame& rendered) {
+  PreviewFrame out;
+  out.image = ToQImage(rendered.bgr);
+  if (!rendered.alpha.empty()) {
+    out.alpha = QImage(rendered.alpha.data, rendered.alpha.cols, rendered.alpha.rows,
+                       static_cast<qsizetype>(rendered.alpha.step), QImage::Format_Grayscale8)
+                    .copy();
+  }
+  for (const auto& p : rendered.landmarks) out.landmarks.emplace_back(p.x, p.y);
+  for (const auto& p : rendered.vertices) out.vertices.emplace_back(p.x, p.y);
+  out.triangles = rendered.triangles;
+  out.stages = QString::fromStdString(rendered.stages);
+  return out;
+}
+
+}  // namespace
+
+std::optional<PreviewFrame> PreviewWorker::renderQuick(const PreviewRequest& request,
+                                                       const std::shared_ptr<const FrameSource>& source) {
+  if (request.driver_frame >= 0) return std::nullopt;  // driven frames change the view too
+  QElapsedTimer clock;
+  clock.start();
+  RunContext ctx;
+  const FrameRequest frame_request = ComposeFrame(source->SourcePose(), request.frame.view, request.frame.expression,
+                                                  nullptr, false, request.frame.width, request.frame.height);
+  std::optional<RenderedFrame> rendered = source->RenderQuick(frame_request, ctx);
+  if (!rendered) return std::nullopt;
+  PreviewFrame out = ToPreview(*rendered);
+  out.milliseconds = static_cast<double>(clock.nsecsElapsed()) / 1e6;
+  return out;
 }
 
 PreviewFrame PreviewWorker::renderOne(const PreviewRequest& request, const std::shared_ptr<const FrameSource>& source) {
@@ -161,16 +203,14 @@ PreviewFrame PreviewWorker::renderOne(const PreviewRequest& request, const std::
   const FrameRequest frame_request =
       ComposeFrame(source->SourcePose(), request.frame.view, request.frame.expression, driven ? &sample : nullptr,
                    request.driver_pose, request.frame.width, request.frame.height);
-  RenderedFrame rendered = source->Render(frame_request, ctx);
-  out.image = ToQImage(rendered.bgr);
-  if (!rendered.alpha.empty()) {
-    out.alpha = QImage(rendered.alpha.data, rendered.alpha.cols, rendered.alpha.rows,
-                       static_cast<qsizetype>(rendered.alpha.step), QImage::Format_Grayscale8)
-                    .copy();
-  }
-  for (const auto& p : rendered.landmarks) out.landmarks.emplace_back(p.x, p.y);
-  for (const auto& p : rendered.vertices) out.vertices.emplace_back(p.x, p.y);
-  out.triangles = rendered.triangles;
+  const RenderedFrame rendered = source->Render(frame_request, ctx);
+  const int64_t driver_frame = out.driver_frame;
+  const bool face_found = out.driver_face_found;
+  QImage driver_image = out.driver_image;
+  out = ToPreview(rendered);
+  out.driver_frame = driver_frame;
+  out.driver_face_found = face_found;
+  out.driver_image = driver_image;
   out.milliseconds = static_cast<double>(clock.nsecsElapsed()) / 1e6;
   return out;
 }

@@ -1,7 +1,10 @@
 #pragma once
 // Renders the viewport on its own thread and coalesces requests: while a frame renders,
 // newer requests replace each other, so only the latest camera/expression/driver state is
-// rendered next. It renders whatever frame source the window gives it (the portrait, the
+// rendered next. What a change recomputes: a camera change renders the whole frame; an
+// expression change at an unchanged view first shows the source's quick frame (the photo's face
+// at the new expression over the last network frame: no network call) and then the full frame,
+// which a newer request pre-empts. It renders whatever frame source the window gives it (the portrait, the
 // morphable preview or the neural session). It also owns the driving video (a DrivingVideo,
 // the same seekable driver every export reads): decoding and analysing driver frames happens
 // here, never on the GUI thread. What is rendered is composed by ComposeFrame, as in exports.
@@ -43,6 +46,9 @@ struct PreviewFrame {
   std::vector<cv::Vec3i> triangles;
   double milliseconds = 0.0;  // Render time of this frame (driver analysis included).
   quint64 serial = 0;         // Serial of the request it answers.
+  // What ran: "" = the full frame; "face update" = a quick frame (FrameSource::RenderQuick),
+  // followed by the full frame of the same serial unless a newer request came first.
+  QString stages;
 };
 
 class PreviewWorker : public QObject {
@@ -70,6 +76,8 @@ class PreviewWorker : public QObject {
   // Counters for tests and the status bar.
   quint64 requestsReceived() const { return requests_; }
   quint64 framesRendered() const { return rendered_; }
+  // Quick frames shown before their full frame (an expression change at an unchanged view).
+  quint64 quickFrames() const { return quick_; }
   bool isIdle() const;
 
  signals:
@@ -86,6 +94,9 @@ class PreviewWorker : public QObject {
   struct DriverState;
   void drain();  // Worker thread.
   PreviewFrame renderOne(const PreviewRequest& request, const std::shared_ptr<const FrameSource>& source);
+  // The source's quick frame of an undriven request, when it has one.
+  std::optional<PreviewFrame> renderQuick(const PreviewRequest& request,
+                                          const std::shared_ptr<const FrameSource>& source);
 
   QThread thread_;
   QObject* worker_ = nullptr;  // Lives on thread_.
@@ -100,6 +111,7 @@ class PreviewWorker : public QObject {
   quint64 next_serial_ = 1;
   std::atomic<quint64> requests_{0};
   std::atomic<quint64> rendered_{0};
+  std::atomic<quint64> quick_{0};
 };
 
 }  // namespace avatar::ui

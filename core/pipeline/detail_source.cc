@@ -1,6 +1,11 @@
 #include "core/pipeline/detail_source.h"
 
+#include <algorithm>
+#include <atomic>
+#include <cmath>
 #include <mutex>
+
+#include <opencv2/imgproc.hpp>
 
 #include "core/model/fusion_net.h"
 #include "core/pipeline/fusion_input.h"
@@ -76,7 +81,8 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
       model_(analysis.model),
       detail_(ModelOf(analysis), analysis.morphable_fit, analysis.portrait.image_unmatted, analysis.portrait.matte,
               analysis.portrait.eye_mouth_mask, options.face, analysis.portrait.landmarks.points),
-      options_(options) {
+      options_(options),
+      kept_(std::make_shared<Kept>()) {
   AVATAR_CHECK_INPUT(base_ != nullptr) << "detail: no base frame source";
   options_.Validate();
   std::vector<std::string> warnings = base_->Warnings();
@@ -144,10 +150,82 @@ RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext&
   return std::move(layers.frame);
 }
 
+struct DetailFrameSource::Kept {
+  std::mutex mutex;
+  bool valid = false;
+  ViewPose view;
+  int width = 0, height = 0;
+  RenderedFrame base;  // never modified once kept (Compose works on copies)
+  std::atomic<int64_t> base_renders{0}, quick{0};
+};
+
+DetailFrameSource::Counts DetailFrameSource::counts() const {
+  return {kept_->base_renders.load(), kept_->quick.load()};
+}
+
+std::optional<RenderedFrame> DetailFrameSource::RenderQuick(const FrameRequest& request, RunContext& ctx) const {
+  RenderedFrame base;
+  {
+    std::lock_guard<std::mutex> lock(kept_->mutex);
+    if (!kept_->valid || kept_->view != request.view || kept_->width != request.width ||
+        kept_->height != request.height) {
+      return std::nullopt;
+    }
+    base = kept_->base;
+    base.bgr = kept_->base.bgr.clone();
+    base.alpha = kept_->base.alpha.clone();
+    base.depth = kept_->base.depth.clone();
+  }
+  ++kept_->quick;
+  // Larger frames are composed at kQuickSide and upscaled: the quick frame is shown for the
+  // moment the full frame takes, and its cost then stays that of a 256 px frame.
+  const double scale = std::min(1.0, static_cast<double>(kQuickSide) / std::max(request.width, request.height));
+  if (scale >= 1.0) {
+    RenderedFrame frame = Compose(request, std::move(base), ctx).frame;
+    frame.stages = "face update";
+    return frame;
+  }
+  FrameRequest small = request;
+  small.width = std::max(16, static_cast<int>(std::lround(request.width * scale)));
+  small.height = std::max(16, static_cast<int>(std::lround(request.height * scale)));
+  const cv::Size small_size(small.width, small.height), full_size(request.width, request.height);
+  cv::resize(base.bgr, base.bgr, small_size, 0, 0, cv::INTER_AREA);
+  if (!base.alpha.empty()) cv::resize(base.alpha, base.alpha, small_size, 0, 0, cv::INTER_AREA);
+  if (!base.depth.empty()) cv::resize(base.depth, base.depth, small_size, 0, 0, cv::INTER_NEAREST);
+  RenderedFrame frame = Compose(small, std::move(base), ctx).frame;
+  cv::resize(frame.bgr, frame.bgr, full_size, 0, 0, cv::INTER_LINEAR);
+  if (!frame.alpha.empty()) cv::resize(frame.alpha, frame.alpha, full_size, 0, 0, cv::INTER_LINEAR);
+  if (!frame.depth.empty()) cv::resize(frame.depth, frame.depth, full_size, 0, 0, cv::INTER_NEAREST);
+  const float sx = static_cast<float>(request.width) / small.width, sy = static_cast<float>(request.height) / small.height;
+  for (auto* points : {&frame.landmarks, &frame.vertices}) {
+    for (cv::Point2f& p : *points) p = {p.x * sx, p.y * sy};
+  }
+  frame.stages = "face update";
+  return frame;
+}
+
 DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunContext& ctx) const {
+  RenderedFrame base = base_->Render(request, ctx);
+  ++kept_->base_renders;
+  ctx.ThrowIfCancelled();
+  {
+    std::lock_guard<std::mutex> lock(kept_->mutex);
+    kept_->valid = true;
+    kept_->view = request.view;
+    kept_->width = request.width;
+    kept_->height = request.height;
+    kept_->base = base;
+    kept_->base.bgr = base.bgr.clone();
+    kept_->base.alpha = base.alpha.clone();
+    kept_->base.depth = base.depth.clone();
+  }
+  return Compose(request, std::move(base), ctx);
+}
+
+DetailLayers DetailFrameSource::Compose(const FrameRequest& request, RenderedFrame base_frame, RunContext& ctx) const {
   DetailLayers layers;
   RenderedFrame& frame = layers.frame;
-  frame = base_->Render(request, ctx);
+  frame = std::move(base_frame);
   ctx.ThrowIfCancelled();
   layers.network = frame.bgr.clone();
   const cv::Size size(request.width, request.height);

@@ -6,6 +6,7 @@
 // path rendered it.
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -57,6 +58,20 @@ class DetailFrameSource : public FrameSource {
   ViewPose SourcePose() const override { return base_->SourcePose(); }
   SourceOverlay Overlay() const override { return base_->Overlay(); }
   RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override;
+  // The detail frame of `request` composed over the last base frame rendered for the same view
+  // and size (by Render or RenderLayers, at any expression): the photo's face follows the new
+  // expression at once, without calling the base source (the network). The eyes' and mouth's
+  // openings keep the kept frame's network pixels (the mouth's interior is painted as always)
+  // until the full frame follows; no fusion net. Frames larger than kQuickSide are composed at
+  // that side and upscaled (a 512 px viewport gets a 256 px quick frame). nullopt when no base
+  // frame of that view and size is kept. stages = "face update".
+  std::optional<RenderedFrame> RenderQuick(const FrameRequest& request, RunContext& ctx) const override;
+  // Frames that called the base source, and quick frames composed over a kept one.
+  struct Counts {
+    int64_t base_renders = 0, quick = 0;
+  };
+  Counts counts() const;
+  static constexpr int kQuickSide = 256;
   // The geometric composite and the layers it was composed from (Render's frame without the
   // fusion net; with it, Render finishes this frame).
   DetailLayers RenderLayers(const FrameRequest& request, RunContext& ctx) const;
@@ -79,6 +94,11 @@ class DetailFrameSource : public FrameSource {
   std::unique_ptr<FrameSource> fill_;  // the textured face mesh (face_fill)
   struct Fusion;
   std::shared_ptr<Fusion> fusion_;     // the learned finish (options.fusion)
+  // The layers of `request` over `base_frame` (the base source's frame of the same view).
+  DetailLayers Compose(const FrameRequest& request, RenderedFrame base_frame, RunContext& ctx) const;
+  // The last base frame and the view and size it was rendered for (RenderQuick).
+  struct Kept;
+  std::shared_ptr<Kept> kept_;
 };
 
 // The start of the label suffix of every frame with the detail path; DetailLabel(mode) is the

@@ -10,6 +10,7 @@
 #include <array>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -50,6 +51,9 @@ struct RenderedFrame {
   std::vector<cv::Point2f> landmarks;
   std::vector<cv::Point2f> vertices;
   std::vector<cv::Vec3i> triangles;
+  // What ran for this frame, for the status bar: "" = everything (the full frame), else e.g.
+  // "face update" for a quick frame (FrameSource::RenderQuick).
+  std::string stages;
 };
 
 // What the source panel draws over the portrait thumbnail (portrait pixel coordinates).
@@ -79,6 +83,15 @@ class FrameSource {
   // GUI thread holds the object (const, no hidden shared mutable state without a lock).
   // Throws InvalidOptions for sizes outside 16..4096, Cancelled through ctx.
   virtual RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const = 0;
+  // A frame of `request` made at once from work kept from an earlier Render (the photo's detail
+  // path: a new expression over the last network frame of the same view), its `stages` saying
+  // so; nullopt when the source keeps nothing that serves (the default). The viewport shows it
+  // first and then renders the full frame (ui/preview_worker.h).
+  virtual std::optional<RenderedFrame> RenderQuick(const FrameRequest& request, RunContext& ctx) const {
+    (void)request;
+    (void)ctx;
+    return std::nullopt;
+  }
   // The frame source this one draws over (the photo's detail path wraps the neural avatar),
   // or null for a source that renders by itself.
   virtual std::shared_ptr<const FrameSource> Wrapped() const { return nullptr; }

@@ -111,7 +111,7 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
           face::PairFaceMetrics face_pair;
           if (face_metrics && r == 0)
             face_pair = face_metrics->Compare(face_metrics->Measure(BgrFromRgb(outs[p][b])), target_faces[b]);
-          for (const std::string bucket : {std::string(FusionBucketOf(meta[0].item<float>())), std::string("all")}) {
+          for (const std::string& bucket : {std::string(FusionBucketOf(meta[0].item<float>())), std::string("all")}) {
             FusionSums& sum = sums[kind + "|" + bucket + "|" + regions[r] + "|" + paths[p]];
             const double psnr = im.psnr[b].item<double>();
             ++sum.n;

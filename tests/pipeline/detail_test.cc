@@ -11,6 +11,7 @@
 #include <cmath>
 #include <iostream>
 #include <limits>
+#include <optional>
 
 #include <opencv2/imgproc.hpp>
 
@@ -83,6 +84,84 @@ TEST_F(Detail, SourceViewGivesThePhotoBack) {
             << valid_psnr << " dB (whole image " << psnr << " dB)\n";
   // A bilinear lookup at the pixel's own position: only rounding and the mesh's edge pixels differ.
   EXPECT_GT(valid_psnr, 35.0);
+}
+
+// What an expression change recomputes (issue 34's scheduler): after a full frame, a new
+// expression at the same view is composed over the kept base frame without calling the base
+// source (the network); it is the full frame of that expression except where the base's own
+// expression shows; another view or size has nothing kept.
+TEST_F(Detail, AnExpressionChangeAtTheSameViewSkipsTheBase) {
+  class Counting : public FrameSource {
+   public:
+    explicit Counting(std::shared_ptr<const FrameSource> base) : base_(std::move(base)) {}
+    std::string Label() const override { return base_->Label(); }
+    bool SupportsPose() const override { return true; }
+    std::vector<std::string> ExpressionControls() const override { return base_->ExpressionControls(); }
+    ViewPose SourcePose() const override { return base_->SourcePose(); }
+    RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override {
+      ++calls;
+      return base_->Render(request, ctx);
+    }
+    mutable int calls = 0;
+
+   private:
+    std::shared_ptr<const FrameSource> base_;
+  };
+  const auto counting = std::make_shared<Counting>(Base());
+  const DetailFrameSource source(counting, *analysis_);
+  const int baked = counting->calls;  // the source view's depth, once
+  RunContext ctx;
+  FrameRequest neutral;
+  neutral.view = source.SourcePose();
+  neutral.view.yaw += 10.0;
+  neutral.width = neutral.height = 256;
+  EXPECT_FALSE(source.RenderQuick(neutral, ctx).has_value());  // nothing kept yet
+  source.Render(neutral, ctx);
+  EXPECT_EQ(counting->calls, baked + 1);
+  FrameRequest jaw = neutral;
+  jaw.expression.controls["jawOpen"] = 0.9f;
+  const std::optional<RenderedFrame> quick = source.RenderQuick(jaw, ctx);
+  ASSERT_TRUE(quick.has_value());
+  EXPECT_EQ(quick->stages, "face update");
+  EXPECT_EQ(counting->calls, baked + 1);  // no base render
+  EXPECT_EQ(source.counts().quick, 1);
+  const RenderedFrame full = source.Render(jaw, ctx);
+  EXPECT_EQ(counting->calls, baked + 2);
+  EXPECT_EQ(source.counts().base_renders, 2);
+  EXPECT_TRUE(full.stages.empty());
+  ASSERT_EQ(quick->bgr.size(), full.bgr.size());
+  cv::Mat diff, grey;
+  cv::absdiff(quick->bgr, full.bgr, diff);
+  cv::cvtColor(diff, grey, cv::COLOR_BGR2GRAY);
+  const double same = 1.0 - cv::countNonZero(grey > 8) / static_cast<double>(grey.total());
+  std::cout << "[detail] quick frame of jawOpen 0.9 over the neutral base frame: " << same
+            << " of the pixels within 8 grey levels of the full frame\n";
+  EXPECT_GT(same, 0.95);
+  // Another view, another size: nothing kept for them.
+  FrameRequest turned = jaw;
+  turned.view.yaw += 5.0;
+  EXPECT_FALSE(source.RenderQuick(turned, ctx).has_value());
+  FrameRequest bigger = jaw;
+  bigger.width = bigger.height = 320;
+  EXPECT_FALSE(source.RenderQuick(bigger, ctx).has_value());
+  // A 512 viewport: the quick frame is composed at 256 and upscaled, so it is softer but the same
+  // picture.
+  FrameRequest large = neutral;
+  large.width = large.height = 512;
+  source.Render(large, ctx);
+  FrameRequest large_jaw = large;
+  large_jaw.expression.controls["jawOpen"] = 0.9f;
+  const std::optional<RenderedFrame> large_quick = source.RenderQuick(large_jaw, ctx);
+  ASSERT_TRUE(large_quick.has_value());
+  ASSERT_EQ(large_quick->bgr.size(), cv::Size(512, 512));
+  ASSERT_EQ(large_quick->alpha.size(), cv::Size(512, 512));
+  const RenderedFrame large_full = source.Render(large_jaw, ctx);
+  cv::absdiff(large_quick->bgr, large_full.bgr, diff);
+  cv::cvtColor(diff, grey, cv::COLOR_BGR2GRAY);
+  const double large_same = 1.0 - cv::countNonZero(grey > 16) / static_cast<double>(grey.total());
+  std::cout << "[detail] the 512 quick frame (composed at 256): " << large_same
+            << " of the pixels within 16 grey levels of the full frame\n";
+  EXPECT_GT(large_same, 0.9);
 }
 
 TEST_F(Detail, TurningShrinksTheVisiblePartAndKeepsTheBaseOutsideTheFace) {

@@ -61,6 +61,7 @@ class WorkerSpy : public QObject {
   qsizetype count() const { return calls_.size(); }
   bool isEmpty() const { return calls_.isEmpty(); }
   const QVariantList& first() const { return calls_.first(); }
+  const QList<QVariantList>& calls() const { return calls_; }
   const QVariantList& last() const { return calls_.last(); }
 
  private:
@@ -167,6 +168,75 @@ class PreviewWorkerTest : public QObject {
   Q_OBJECT
 
  private slots:
+  // What a change recomputes (issue 34's scheduler): an expression change at an unchanged view
+  // shows the source's quick frame first and then the full frame of the same serial; a camera
+  // change renders the full frame only; a driven request never takes the quick path.
+  void anExpressionChangeShowsItsQuickFrameFirst() {
+    class QuickSource : public FrameSource {
+     public:
+      std::string Label() const override { return "quick"; }
+      bool SupportsPose() const override { return true; }
+      std::vector<std::string> ExpressionControls() const override { return {"jawOpen"}; }
+      RenderedFrame Render(const FrameRequest& request, RunContext&) const override {
+        ++full;
+        std::lock_guard<std::mutex> lock(mutex);
+        kept = request.view;
+        has_kept = true;
+        RenderedFrame f;
+        f.bgr = cv::Mat(request.height, request.width, CV_8UC3, cv::Scalar::all(200));
+        return f;
+      }
+      std::optional<RenderedFrame> RenderQuick(const FrameRequest& request, RunContext&) const override {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (!has_kept || kept != request.view) return std::nullopt;
+        ++quick;
+        RenderedFrame f;
+        f.bgr = cv::Mat(request.height, request.width, CV_8UC3, cv::Scalar::all(100));
+        f.stages = "face update";
+        return f;
+      }
+      mutable std::atomic<int> full{0}, quick{0};
+
+     private:
+      mutable std::mutex mutex;
+      mutable ViewPose kept;
+      mutable bool has_kept = false;
+    };
+    PreviewWorker worker;
+    auto source = std::make_shared<QuickSource>();
+    worker.setSource(source);
+    WorkerSpy frames(&worker, &PreviewWorker::frameReady);
+    PreviewRequest r;
+    r.frame.width = r.frame.height = 32;
+    worker.request(r);
+    QVERIFY(frames.waitForCount(1, 20000));
+    QCOMPARE(source->full.load(), 1);
+    QCOMPARE(source->quick.load(), 0);  // nothing kept before the first frame
+    // An expression change: the quick frame, then the full frame, one serial.
+    r.frame.expression.controls["jawOpen"] = 0.7f;
+    const quint64 serial = worker.request(r);
+    QVERIFY(frames.waitForCount(3, 20000));
+    const auto quick = frames.calls().at(1).at(0).value<PreviewFrame>();
+    const auto full = frames.calls().at(2).at(0).value<PreviewFrame>();
+    QCOMPARE(quick.serial, serial);
+    QCOMPARE(full.serial, serial);
+    QCOMPARE(quick.stages, QStringLiteral("face update"));
+    QVERIFY(full.stages.isEmpty());
+    QCOMPARE(qGray(quick.image.pixel(0, 0)), 100);
+    QCOMPARE(qGray(full.image.pixel(0, 0)), 200);
+    QCOMPARE(source->quick.load(), 1);
+    QCOMPARE(source->full.load(), 2);
+    QCOMPARE(worker.quickFrames(), quint64{1});
+    // A camera change: the full frame only.
+    r.frame.view.yaw = 20.0;
+    worker.request(r);
+    QVERIFY(frames.waitForCount(4, 20000));
+    QTRY_VERIFY_WITH_TIMEOUT(worker.isIdle(), 20000);
+    QCOMPARE(frames.count(), 4);
+    QCOMPARE(source->quick.load(), 1);
+    QCOMPARE(source->full.load(), 3);
+  }
+
   // While the first frame renders (held at the gate), 100 more requests arrive: they collapse
   // into one, so exactly two renders happen, the first request's and the last one's.
   void burstsAreCoalescedAndTheLatestStateWins() {
