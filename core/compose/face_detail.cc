@@ -113,6 +113,16 @@ FaceDetail::FaceDetail(const morphable::MorphableModel& model, morphable::FitRes
   }
 }
 
+void FaceDetail::SetFillTexture(const morphable::Texture& texture) {
+  AVATAR_CHECK_INPUT(texture.uv_image.empty() || texture.uv_image.type() == CV_32FC3)
+      << "detail: the fill texture must be CV_32FC3";
+  AVATAR_CHECK_INPUT(!texture.uv_image.empty() ||
+                     texture.vertex_colors.size() == static_cast<size_t>(model_.topology().uv.size()))
+      << "detail: the fill texture has neither a UV image nor a colour per vertex";
+  fill_texture_ = texture;
+  fill_ = true;
+}
+
 FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable::Beta& beta, cv::Size size) const {
   AVATAR_CHECK_INPUT(static_cast<int>(beta.size()) == model_.num_expression())
       << "detail: " << beta.size() << " expression coefficients for a model with " << model_.num_expression();
@@ -140,6 +150,9 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   out.valid = cv::Mat::zeros(size, CV_8UC1);
   out.face = cv::Mat::zeros(size, CV_8UC1);
   cv::Mat eye_mouth = cv::Mat::zeros(size, CV_8UC1);
+  cv::Mat fill = fill_ ? cv::Mat::zeros(size, CV_8UC3) : cv::Mat();
+  const auto& uv = model_.topology().uv;
+  const cv::Mat& uv_image = fill_texture_.uv_image;
   // Rows are independent: split over OpenCV's threads.
   cv::parallel_for_(cv::Range(0, size.height), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
@@ -149,6 +162,21 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
         out.face.at<uchar>(y, x) = 255;
         const cv::Vec3f b = raster.bary.at<cv::Vec3f>(y, x);
         const cv::Vec3i& f = triangles[t];
+        if (fill_) {
+          // The texture as the morphable preview looks it up (texel centres at (i + 0.5) / size).
+          cv::Vec3f colour;
+          if (!uv_image.empty()) {
+            const cv::Point2f at = b[0] * uv[f[0]] + b[1] * uv[f[1]] + b[2] * uv[f[2]];
+            colour = morphable::SampleBilinear<cv::Vec3f>(uv_image, at.x * uv_image.cols - 0.5,
+                                                          at.y * uv_image.rows - 0.5);
+          } else {
+            const auto& vc = fill_texture_.vertex_colors;
+            colour = b[0] * vc[f[0]] + b[1] * vc[f[1]] + b[2] * vc[f[2]];
+          }
+          fill.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uchar>(colour[0] * 255.0f),
+                                               cv::saturate_cast<uchar>(colour[1] * 255.0f),
+                                               cv::saturate_cast<uchar>(colour[2] * 255.0f));
+        }
         // The same surface point of the mesh at the source expression, seen by the source camera.
         cv::Vec3d world(0, 0, 0);
         for (int k = 0; k < 3; ++k) {
@@ -175,6 +203,7 @@ FaceWarp FaceDetail::Warp(const morphable::CameraLabel& camera, const morphable:
   warp.eye_mouth = std::move(eye_mouth);
   warp.changed = changed;
   warp.cavity = std::move(cavity);
+  warp.fill_bgr = std::move(fill);
   return warp;
 }
 

@@ -71,6 +71,9 @@ struct FaceWarp {
   // [H,W] CV_8UC1 255 where the frame below is opaque but the photo shows empty space there
   // (DepthDetail only; ClearCarved removes it); empty for other warps.
   cv::Mat carved;
+  // [H,W] CV_8UC3 the fitted face's texture over the whole face mesh (where `face`), looked up
+  // through the same rasterisation as the warp; empty unless FaceDetail::SetFillTexture was called.
+  cv::Mat fill_bgr;
 };
 
 class FaceDetail {
@@ -94,6 +97,11 @@ class FaceDetail {
 
   const morphable::FitResult& fit() const { return fit_; }
 
+  // Also look up `texture` (the fit's UV texture, or its vertex colours when it has no UV image)
+  // over the whole face in every Warp (FaceWarp::fill_bgr): the fill of what the photo did not see,
+  // at no second rasterisation of the mesh. Throws InvalidInput for a texture of another type.
+  void SetFillTexture(const morphable::Texture& texture);
+
   // The largest motion of a region's vertices (mesh_index contour) from the source expression to
   // `target_world` (the mesh at the target expression, source pose), as a fraction of the eye
   // distance.
@@ -115,6 +123,8 @@ class FaceDetail {
   cv::Mat source_depth_;                   // CV_32FC1 source-view depth of the mesh (+inf where empty)
   bool eye_closed_[2] = {false, false};    // the photo's right and left eye
   cv::Vec3b cavity_colour_{0, 0, 0};       // BGR of the mouth's interior
+  bool fill_ = false;                      // SetFillTexture was called
+  morphable::Texture fill_texture_;
 };
 
 // Lid gap over eye width of the subject's right (0) or left (1) eye from facemesh-ordered points

@@ -107,9 +107,7 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     fusion_ = std::make_shared<Fusion>();
     fusion_->net = LoadFusionNet(options_.fusion, &fusion_->info);
   }
-  if (options_.face_fill) {
-    fill_ = std::make_unique<MorphablePreviewSource>(*analysis.model, analysis.morphable_fit, analysis.texture);
-  }
+  if (options_.face_fill) detail_.SetFillTexture(analysis.texture);
   SetWarnings(std::move(warnings));
 }
 
@@ -240,13 +238,13 @@ DetailLayers DetailFrameSource::Compose(const FrameRequest& request, RenderedFra
   } else {
     layers.depth_weight = cv::Mat::zeros(size, CV_32FC1);
   }
-  if (fill_ != nullptr) {
+  if (!warp.fill_bgr.empty()) {
     // Under the photo's warp, the textured face mesh over the whole face: what the photo did not
-    // see of the face shows the fit's texture, not the network's blur.
-    const RenderedFrame face = fill_->Render(request, ctx);
+    // see of the face shows the fit's texture, not the network's blur (looked up through the face
+    // warp's own rasterisation of the mesh).
     compose::FaceWarp fill;
-    fill.bgr = face.bgr;
-    fill.valid = face.alpha >= 128;
+    fill.bgr = warp.fill_bgr;
+    fill.valid = warp.face.clone();  // ExcludeRegion edits it; the warp's own mask stays whole
     fill.face = fill.valid;
     fill.weight = compose::FeatheredWeight(fill.valid, options_.face.feather);
     compose::ExcludeRegion(&fill, warp.changed, options_.face.feather);

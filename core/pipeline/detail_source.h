@@ -91,7 +91,6 @@ class DetailFrameSource : public FrameSource {
   compose::FaceDetail detail_;
   DetailOptions options_;
   std::unique_ptr<compose::DepthDetail> depth_;
-  std::unique_ptr<FrameSource> fill_;  // the textured face mesh (face_fill)
   struct Fusion;
   std::shared_ptr<Fusion> fusion_;     // the learned finish (options.fusion)
   // The layers of `request` over `base_frame` (the base source's frame of the same view).
