@@ -783,8 +783,10 @@ bool MainWindow::startLive(const QString& camera) {
 
 void MainWindow::stopLive() {
   if (live_ == nullptr) return;
+  const bool was_live = live_active_;
   live_active_ = false;
   live_->stop();
+  if (was_live) requestPreview();  // the sliders' frame again
 }
 
 void MainWindow::onLiveFrame(const LiveFrame& frame) {

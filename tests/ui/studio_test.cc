@@ -324,9 +324,11 @@ class StudioTest : public QObject {
     QTRY_VERIFY_WITH_TIMEOUT(frames.count() >= 8, 60000);
     QVERIFY(w.isLive());
     Shot(&w, QStringLiteral("studio-live"));
+    QSignalSpy back(&w, &MainWindow::frameShown);
     w.stopLive();
     QVERIFY(!w.isLive());
-    QCOMPARE(w.viewport()->image().width(), 256);
+    QVERIFY(back.wait(60000));  // the sliders' frame again
+    QCOMPARE(w.viewport()->image().width(), 512);
     // Back to the morphable preview for the rest of this test case.
     done.clear();
     w.sourcePanel()->morphablePreviewBox()->setChecked(true);
