@@ -30,6 +30,8 @@
 #include "core/train/losses.h"
 #include "core/train/perceptual.h"
 #include "core/util/error.h"
+#include "core/util/text.h"
+#include "core/util/measure.h"
 #include "core/util/threads.h"
 #include "core/util/timer.h"
 
@@ -118,14 +120,6 @@ struct Row {
   std::vector<face::PairFaceMetrics> turned_plus, turned_minus;
 };
 
-double Mean(const std::vector<double>& v) {
-  if (v.empty()) return std::nan("");
-  double s = 0.0;
-  for (double x : v) s += x;
-  return s / static_cast<double>(v.size());
-}
-
-std::string Num(double v, int digits) { return std::isfinite(v) ? Fixed(v, digits) : "-"; }
 
 json JsonNum(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
@@ -527,9 +521,9 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
     const face::FaceMetricsSummary sm = face::FaceMetrics::Summarise(r.turned_minus);
     plus_summary.push_back(sp);
     minus_summary.push_back(sm);
-    md << "| " << r.name << " | " << r.describe << " | " << Num(Mean(r.reconstruct_s), 2) << " | "
-       << Num(Mean(r.frame_s), 3) << " | " << Num(Mean(r.psnr), 2) << " | " << Num(Mean(r.psnr_matte), 2) << " | "
-       << Num(Mean(r.ssim), 3) << " | " << Num(Mean(r.perceptual), 3) << " | " << CsimCell(sp) << " | "
+    md << "| " << r.name << " | " << r.describe << " | " << FixedOrDash(MeanOrNan(r.reconstruct_s), 2) << " | "
+       << FixedOrDash(MeanOrNan(r.frame_s), 3) << " | " << FixedOrDash(MeanOrNan(r.psnr), 2) << " | " << FixedOrDash(MeanOrNan(r.psnr_matte), 2) << " | "
+       << FixedOrDash(MeanOrNan(r.ssim), 3) << " | " << FixedOrDash(MeanOrNan(r.perceptual), 3) << " | " << CsimCell(sp) << " | "
        << CsimCell(sm) << " |\n";
     json jr = {{"name", r.name},
                {"kind", r.kind},
@@ -540,12 +534,12 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
                {"num_coarse", r.settings.num_coarse},
                {"num_importance", r.settings.num_importance},
                {"super_resolution", r.settings.super_resolution},
-               {"reconstruct_seconds", JsonNum(Mean(r.reconstruct_s))},
-               {"frame_seconds", JsonNum(Mean(r.frame_s))},
-               {"psnr", JsonNum(Mean(r.psnr))},
-               {"psnr_matte", JsonNum(Mean(r.psnr_matte))},
-               {"ssim", JsonNum(Mean(r.ssim))},
-               {"perceptual", JsonNum(Mean(r.perceptual))}};
+               {"reconstruct_seconds", JsonNum(MeanOrNan(r.reconstruct_s))},
+               {"frame_seconds", JsonNum(MeanOrNan(r.frame_s))},
+               {"psnr", JsonNum(MeanOrNan(r.psnr))},
+               {"psnr_matte", JsonNum(MeanOrNan(r.psnr_matte))},
+               {"ssim", JsonNum(MeanOrNan(r.ssim))},
+               {"perceptual", JsonNum(MeanOrNan(r.perceptual))}};
     jr["csim_plus"] = {{"valid", sp.valid}, {"pairs", sp.pairs}, {"mean", sp.valid > 0 ? JsonNum(sp.csim) : json()}};
     jr["csim_minus"] = {{"valid", sm.valid}, {"pairs", sm.pairs}, {"mean", sm.valid > 0 ? JsonNum(sm.csim) : json()}};
     jrows.push_back(jr);
@@ -572,14 +566,14 @@ AccuracyBenchmarkReport RunAccuracyBenchmark(const AccuracyBenchmarkOptions& opt
   for (size_t i = 0; i < rows.size(); ++i) {
     const Row& r = rows[i];
     const size_t s = r.detail ? 2 : r.kind == kLevelRow ? 0 : 1;
-    const double x = Mean(r.reconstruct_s);
+    const double x = MeanOrNan(r.reconstruct_s);
     const std::string label = r.kind == "sweep" ? std::to_string(r.steps) : r.name;
-    psnr_series[s].points.push_back({x, Mean(r.psnr)});
+    psnr_series[s].points.push_back({x, MeanOrNan(r.psnr)});
     psnr_series[s].names.push_back(label);
     std::vector<double> csims;
     if (plus_summary[i].valid > 0) csims.push_back(plus_summary[i].csim);
     if (minus_summary[i].valid > 0) csims.push_back(minus_summary[i].csim);
-    csim_series[s].points.push_back({x, Mean(csims)});
+    csim_series[s].points.push_back({x, MeanOrNan(csims)});
     csim_series[s].names.push_back(label);
   }
   cv::Mat plot(520, 1200, CV_8UC3, cv::Scalar(255, 255, 255));

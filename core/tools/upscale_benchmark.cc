@@ -53,14 +53,6 @@ struct Way {
   std::vector<double> psnr, psnr_matte, ssim, perceptual, seconds;
 };
 
-double Mean(const std::vector<double>& v) {
-  if (v.empty()) return std::nan("");
-  double s = 0.0;
-  for (double x : v) s += x;
-  return s / static_cast<double>(v.size());
-}
-
-std::string Num(double v, int digits) { return std::isfinite(v) ? Fixed(v, digits) : "-"; }
 
 class Scorer {
  public:
@@ -85,8 +77,8 @@ class Scorer {
 void Table(std::ostringstream& md, const std::vector<Way>& ways) {
   md << "| way | frames | PSNR | PSNR (matte) | SSIM | perceptual | seconds / frame |\n|---|---|---|---|---|---|---|\n";
   for (const Way& w : ways) {
-    md << "| " << w.name << " | " << w.psnr.size() << " | " << Num(Mean(w.psnr), 2) << " | "
-       << Num(Mean(w.psnr_matte), 2) << " | " << Num(Mean(w.ssim), 4) << " | " << Num(Mean(w.perceptual), 4) << " | "
+    md << "| " << w.name << " | " << w.psnr.size() << " | " << FixedOrDash(MeanOrNan(w.psnr), 2) << " | "
+       << FixedOrDash(MeanOrNan(w.psnr_matte), 2) << " | " << FixedOrDash(MeanOrNan(w.ssim), 4) << " | " << FixedOrDash(MeanOrNan(w.perceptual), 4) << " | "
        << (w.seconds.empty() ? std::string("-") : Fixed(Median(w.seconds), 3)) << " |\n";
   }
 }
@@ -97,10 +89,10 @@ json WaysJson(const std::vector<Way>& ways) {
     auto num = [](double v) { return std::isfinite(v) ? json(v) : json(nullptr); };
     out.push_back({{"name", w.name},
                    {"frames", w.psnr.size()},
-                   {"psnr", num(Mean(w.psnr))},
-                   {"psnr_matte", num(Mean(w.psnr_matte))},
-                   {"ssim", num(Mean(w.ssim))},
-                   {"perceptual", num(Mean(w.perceptual))},
+                   {"psnr", num(MeanOrNan(w.psnr))},
+                   {"psnr_matte", num(MeanOrNan(w.psnr_matte))},
+                   {"ssim", num(MeanOrNan(w.ssim))},
+                   {"perceptual", num(MeanOrNan(w.perceptual))},
                    {"seconds", w.seconds.empty() ? json(nullptr) : json(Median(w.seconds))}});
   }
   return out;

@@ -1,5 +1,7 @@
 #include "core/util/measure.h"
 
+#include <cmath>
+
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -16,6 +18,13 @@ double Median(std::vector<double> values) {
   std::sort(values.begin(), values.end());
   const size_t n = values.size();
   return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+double MeanOrNan(const std::vector<double>& values) {
+  if (values.empty()) return std::nan("");
+  double sum = 0.0;
+  for (double x : values) sum += x;
+  return sum / static_cast<double>(values.size());
 }
 
 double MedianSeconds(int repeats, RunContext& ctx, const std::function<void()>& fn) {

@@ -12,6 +12,8 @@ namespace avatar {
 
 // Median of `values` (the mean of the middle two for an even count). Throws InvalidInput when empty.
 double Median(std::vector<double> values);
+// Mean of `values`; NaN when empty (a table cell with nothing measured).
+double MeanOrNan(const std::vector<double>& values);
 
 // Median wall time in seconds of `fn` over `repeats` runs after one warm-up run; checks `ctx`
 // for a cancel before each timed run. Throws InvalidInput for repeats < 1.

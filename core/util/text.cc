@@ -24,4 +24,6 @@ std::vector<std::string> SplitList(const std::string& text) {
   return parts;
 }
 
+std::string FixedOrDash(double value, int digits) { return std::isfinite(value) ? Fixed(value, digits) : "-"; }
+
 }  // namespace avatar

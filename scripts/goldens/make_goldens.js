@@ -93,6 +93,25 @@ function fixedInput(shape, range, seed) {
   return data;
 }
 
+// A Keras layers model from its {modelTopology, weightsManifest} and a reader of each shard's
+// bytes (by manifest path).
+async function loadLayers(artifacts, readShard) {
+  const specs = [];
+  const buffers = [];
+  for (const group of artifacts.weightsManifest) {
+    for (const p of group.paths) buffers.push(readShard(p));
+    specs.push(...group.weights);
+  }
+  const all = Buffer.concat(buffers);
+  return layers.loadLayersModel({
+    load: async () => ({
+      modelTopology: artifacts.modelTopology,
+      weightSpecs: specs,
+      weightData: all.buffer.slice(all.byteOffset, all.byteOffset + all.byteLength),
+    }),
+  });
+}
+
 // The nsfwjs files are CommonJS modules: model.min.js exports {modelTopology, weightsManifest},
 // the shard module exports the weights as one base64 string.
 async function nsfwjsGoldens(manifest, seed) {
@@ -102,22 +121,8 @@ async function nsfwjsGoldens(manifest, seed) {
     console.log(`goldens: ${modelFile} not installed (scripts/setup); nsfwjs goldens skipped`);
     return;
   }
-  const artifacts = require(modelFile);
-  const specs = [];
-  const buffers = [];
-  for (const group of artifacts.weightsManifest) {
-    for (const p of group.paths) buffers.push(Buffer.from(require(path.join(dir, p + '.min.js')), 'base64'));
-    specs.push(...group.weights);
-  }
-  const all = Buffer.concat(buffers);
-  const handler = {
-    load: async () => ({
-      modelTopology: artifacts.modelTopology,
-      weightSpecs: specs,
-      weightData: all.buffer.slice(all.byteOffset, all.byteOffset + all.byteLength),
-    }),
-  };
-  const model = await layers.loadLayersModel(handler);
+  const model = await loadLayers(require(modelFile), (p) =>
+    Buffer.from(require(path.join(dir, p + '.min.js')), 'base64'));
   const taps = layers.model({inputs: model.inputs, outputs: NSFWJS_TAPS.map((n) => model.getLayer(n).output)});
   const dims = [1, 224, 224, 3];
   const data = fixedInput(dims, [-1, 1], seed);
@@ -147,22 +152,8 @@ async function esrganGoldens(manifest, seed) {
     console.log(`goldens: ${modelFile} not installed (scripts/setup); esrgan-slim goldens skipped`);
     return;
   }
-  const artifacts = JSON.parse(fs.readFileSync(modelFile, 'utf8'));
-  const specs = [];
-  const buffers = [];
-  for (const group of artifacts.weightsManifest) {
-    for (const p of group.paths) buffers.push(fs.readFileSync(path.join(dir, p)));
-    specs.push(...group.weights);
-  }
-  const all = Buffer.concat(buffers);
-  const handler = {
-    load: async () => ({
-      modelTopology: artifacts.modelTopology,
-      weightSpecs: specs,
-      weightData: all.buffer.slice(all.byteOffset, all.byteOffset + all.byteLength),
-    }),
-  };
-  const model = await layers.loadLayersModel(handler);
+  const model = await loadLayers(JSON.parse(fs.readFileSync(modelFile, 'utf8')), (p) =>
+    fs.readFileSync(path.join(dir, p)));
   const dims = [1, 20, 28, 3];
   const data = fixedInput(dims, [0, 255], seed);
   const input = tf.tensor(data, dims, 'float32');

@@ -40,6 +40,16 @@ void WriteText(const fs::path& p, const std::string& s) {
   out << s;
 }
 
+// A tensor of the TF.js goldens (raw float32, NHWC as TF.js writes it) as NCHW.
+torch::Tensor ReadGolden(const fs::path& dir, const json& t) {
+  const auto shape = t["shape"].get<std::vector<int64_t>>();
+  auto out = torch::zeros(shape, torch::kFloat32);
+  std::ifstream f(dir / t["file"].get<std::string>(), std::ios::binary);
+  f.read(reinterpret_cast<char*>(out.data_ptr<float>()), out.numel() * 4);
+  EXPECT_EQ(f.gcount(), out.numel() * 4) << t["file"];
+  return out.permute({0, 3, 1, 2}).contiguous();
+}
+
 // Expects ModelLoad whose message names `file` and scripts/setup.
 template <typename F>
 void ExpectModelLoad(F&& f, const fs::path& file) {
@@ -151,14 +161,7 @@ TEST(MobileNetV2, MatchesTensorFlowJsGoldens) {
       << "goldens lack nsfwjs (model not installed when they were made?): run scripts/setup, then ctest -R goldens";
   const json& entry = manifest["layers_models"][0];
   ASSERT_EQ(entry["name"], "nsfwjs");
-  auto read = [&](const json& t) {
-    const auto shape = t["shape"].get<std::vector<int64_t>>();
-    auto out = torch::zeros(shape, torch::kFloat32);
-    std::ifstream f(dir / t["file"].get<std::string>(), std::ios::binary);
-    f.read(reinterpret_cast<char*>(out.data_ptr<float>()), out.numel() * 4);
-    EXPECT_EQ(f.gcount(), out.numel() * 4) << t["file"];
-    return out.permute({0, 3, 1, 2}).contiguous();  // NHWC -> NCHW
-  };
+  auto read = [&](const json& t) { return ReadGolden(dir, t); };
   const torch::Tensor x = read(entry["inputs"][0]);
   std::vector<std::string> taps;
   for (const auto& o : entry["outputs"]) taps.push_back(o["name"]);
@@ -292,14 +295,7 @@ TEST(KerasNet, EsrganSlimMatchesTensorFlowJsGoldens) {
   }
   ASSERT_NE(entry, nullptr) << "goldens lack esrgan-slim-x2 (not installed when they were made?): run scripts/setup, "
                                "then ctest -R goldens";
-  auto read = [&](const json& t) {
-    const auto shape = t["shape"].get<std::vector<int64_t>>();
-    auto out = torch::zeros(shape, torch::kFloat32);
-    std::ifstream f(dir / t["file"].get<std::string>(), std::ios::binary);
-    f.read(reinterpret_cast<char*>(out.data_ptr<float>()), out.numel() * 4);
-    EXPECT_EQ(f.gcount(), out.numel() * 4) << t["file"];
-    return out.permute({0, 3, 1, 2}).contiguous();
-  };
+  auto read = [&](const json& t) { return ReadGolden(dir, t); };
   const fs::path model = DataPaths::Resolve().Path("models/esrgan-slim-x2/model.json");
   ASSERT_TRUE(fs::exists(model)) << model << " is missing: run scripts/setup (data version 3)";
   const KerasNet net(io::LoadKerasLayersModel(model));
