@@ -1,3 +1,6 @@
+// LibTorch headers (through the pipeline) first: Qt's `slots` keyword macro breaks them when it is defined earlier.
+#include "core/pipeline/detail_source.h"
+
 #include "ui/main_window.h"
 
 #include <QAction>
@@ -7,6 +10,7 @@
 #include <QDockWidget>
 #include <QDragEnterEvent>
 #include <QDropEvent>
+#include <QElapsedTimer>
 #include <QFileDialog>
 #include <QFileInfo>
 #include <QInputDialog>
@@ -137,16 +141,26 @@ MainWindow::MainWindow(QWidget* parent) : QMainWindow(parent) {
     p.yaw += dyaw;
     p.pitch += dpitch;
     pose_panel_->setPose(p);
-    requestPreview();
+    if (!redrawOrbit()) requestPreview();
   });
+  connect(viewport_, &Viewport::orbitFinished, this, [this] {
+    if (orbit_pending_) requestPreview();  // the full frame of where the drag stopped
+  });
+  connect(preview_, &PreviewWorker::sceneReady, this, [this](quintptr key, ScenePtr scene) {
+    if (!source_ || reinterpret_cast<quintptr>(source_.get()) != key) return;  // a replaced source's
+    viewport_->setScene(std::move(scene));
+  });
+  // A zoom step or a reset: the meshes at once where the viewport has them, the full frame next.
   connect(viewport_, &Viewport::zoomWheeled, this, [this](double factor) {
     ViewPose p = pose_panel_->pose();
     p.zoom *= factor;
     pose_panel_->setPose(p);
+    redrawOrbit();
     requestPreview();
   });
   connect(viewport_, &Viewport::resetRequested, this, [this] {
     pose_panel_->setPose({});
+    redrawOrbit();
     requestPreview();
   });
   connect(jobs_, &JobRunner::started, this, &MainWindow::onJobStarted);
@@ -522,6 +536,9 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
   if (live_active_) stopLive();  // the live session drove the avatar being replaced
   source_ = std::move(source);
   preview_->setSource(source_);
+  viewport_->setScene(nullptr);
+  orbit_pending_ = false;
+  preview_->buildScene(source_);
   if (source_) {
     expression_panel_->setSupported(source_->ExpressionControls());
     viewport_->setLabel(QString::fromStdString(source_->Label()));
@@ -536,6 +553,7 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
 
 void MainWindow::requestPreview() {
   if (!source_ || live_active_) return;  // while live, the camera drives the viewport
+  orbit_pending_ = false;
   PreviewRequest r;
   // The user's view offset; the worker composes it with the source's pose and the driver's
   // (ComposeFrame, as exports do).
@@ -550,20 +568,44 @@ void MainWindow::requestPreview() {
   last_request_ = preview_->request(r);
 }
 
+bool MainWindow::redrawOrbit() {
+  if (!source_ || live_active_ || !viewport_->hasScene() || driving_panel_->hasDriver()) return false;
+  const DetailFrameSource* detail = DetailFrameSource::Find(source_.get());
+  if (detail == nullptr) return false;
+  QElapsedTimer timer;
+  timer.start();
+  const FrameRequest r = ComposeFrame(source_->SourcePose(), pose_panel_->pose(), expression_panel_->expression(),
+                                      nullptr, false, kPreviewSize, kPreviewSize);
+  const DetailFrameSource::MeshView view = detail->ViewportView(r);
+  // Depth range: the head sits about kCameraRadius / zoom from the camera.
+  const std::array<float, 3> eye = {view.camera[3], view.camera[7], view.camera[11]};  // cam2world's centre
+  viewport_->showScene(render::GlClipFromWorld(view.camera, 0.05, 50.0), eye, view.face);
+  orbit_pending_ = true;
+  ++mesh_orbit_frames_;
+  frame_time_label_->setText(tr("Frame: meshes redrawn with OpenGL (camera move, %1 ms to pose them: no network); "
+                                "the full frame follows when you let go")
+                                 .arg(static_cast<double>(timer.nsecsElapsed()) / 1e6, 0, 'f', 1));
+  return true;
+}
+
 void MainWindow::onFrame(const PreviewFrame& frame) {
   last_frame_ = frame.image;
   last_alpha_ = frame.alpha;
   if (frame.stages.isEmpty()) last_shown_ = frame.serial;
   last_driver_frame_ = frame.driver_frame;
-  viewport_->setImage(frame.image);
-  viewport_->setOverlay(frame.landmarks, frame.vertices, frame.triangles);
-  // Which stages ran: a quick frame (the face at the new expression over the last network
-  // frame) is followed by the full one.
-  frame_time_label_->setText(frame.stages.isEmpty()
-                                 ? tr("Frame: %1 ms (full frame)").arg(frame.milliseconds, 0, 'f', 1)
-                                 : tr("Frame: %1 ms (%2; the full frame follows)")
-                                       .arg(frame.milliseconds, 0, 'f', 1)
-                                       .arg(frame.stages));
+  // During an orbit drag drawn by the meshes a frame of an earlier view would jump back: the
+  // meshes stay until the drag's own full frame arrives.
+  if (!orbit_pending_) {
+    viewport_->setImage(frame.image);
+    viewport_->setOverlay(frame.landmarks, frame.vertices, frame.triangles);
+    // Which stages ran: a quick frame (the face at the new expression over the last network
+    // frame) is followed by the full one.
+    frame_time_label_->setText(frame.stages.isEmpty()
+                                   ? tr("Frame: %1 ms (full frame)").arg(frame.milliseconds, 0, 'f', 1)
+                                   : tr("Frame: %1 ms (%2; the full frame follows)")
+                                         .arg(frame.milliseconds, 0, 'f', 1)
+                                         .arg(frame.stages));
+  }
   if (frame.driver_frame >= 0) driving_panel_->setDriverImage(frame.driver_image, frame.driver_face_found);
   if (!frame.stages.isEmpty()) {
     emit quickFrameShown(frame.serial);
@@ -590,6 +632,8 @@ void MainWindow::stepDriver(int delta) {
 }
 
 QString MainWindow::statusText() const { return status_label_->text(); }
+
+QString MainWindow::frameTimeText() const { return frame_time_label_->text(); }
 
 void MainWindow::showNeutralInUse() {
   // The panel shows the neutral frame actually used (the driver's choice when the requested

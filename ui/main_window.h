@@ -105,6 +105,8 @@ class MainWindow : public QMainWindow {
   QString lastError() const { return last_error_; }
   // The frame source the viewport renders (null before a portrait is loaded).
   std::shared_ptr<const FrameSource> frameSource() const { return source_; }
+  // Orbit steps drawn by the viewport's OpenGL meshes instead of a rendered frame.
+  quint64 meshOrbitFrames() const { return mesh_orbit_frames_; }
   // The last frame shown in the viewport.
   const QImage& lastFrame() const { return last_frame_; }
   const QImage& lastAlpha() const { return last_alpha_; }
@@ -112,6 +114,8 @@ class MainWindow : public QMainWindow {
   qint64 lastDriverFrame() const { return last_driver_frame_; }
   // The status bar's message (e.g. which neutral frame a driver uses).
   QString statusText() const;
+  // The status bar's frame field: what the last frame cost and which stages ran.
+  QString frameTimeText() const;
 
  signals:
   void portraitLoaded(const QString& path);
@@ -154,6 +158,10 @@ class MainWindow : public QMainWindow {
   void showError(const QString& title, const QString& message);
   void setFrameSource(std::shared_ptr<const FrameSource> source);
   void requestPreview();
+  // An orbit step: redraws the avatar's meshes at the new view with OpenGL when the viewport has
+  // them and nothing drives the head (no network call; the full frame follows when the drag
+  // ends), else requests the frame. Returns whether the meshes drew it.
+  bool redrawOrbit();
   void showNeutralInUse();
   void onFrame(const PreviewFrame& frame);
   void onJobStarted(const QString& title);
@@ -201,6 +209,8 @@ class MainWindow : public QMainWindow {
   QString export_output_;
   std::atomic<qint64> export_frames_{0};  // Written by the export job.
   quint64 last_request_ = 0;
+  bool orbit_pending_ = false;
+  quint64 mesh_orbit_frames_ = 0;  // a drag was drawn by the meshes; the full frame follows on release
   quint64 last_shown_ = 0;
   QImage last_frame_;
   QImage last_alpha_;

@@ -1,5 +1,7 @@
 // LibTorch headers first: Qt's `slots` keyword macro breaks them when it is defined earlier.
 #include <c10/core/InferenceMode.h>
+#include "core/pipeline/detail_source.h"
+#include "core/pipeline/head_mesh.h"
 
 #include "ui/preview_worker.h"
 
@@ -7,6 +9,7 @@
 #include <QMetaObject>
 
 #include "core/util/error.h"
+#include "core/util/logging.h"
 #include "ui/image_convert.h"
 
 namespace avatar::ui {
@@ -18,6 +21,7 @@ struct PreviewWorker::DriverState {
 
 PreviewWorker::PreviewWorker(QObject* parent) : QObject(parent) {
   qRegisterMetaType<avatar::ui::PreviewFrame>();
+  qRegisterMetaType<avatar::ui::ScenePtr>();
   worker_ = new QObject;
   worker_->moveToThread(&thread_);
   connect(&thread_, &QThread::finished, worker_, &QObject::deleteLater);
@@ -38,6 +42,21 @@ PreviewWorker::~PreviewWorker() {
 void PreviewWorker::setSource(std::shared_ptr<const FrameSource> source) {
   std::lock_guard<std::mutex> lock(mutex_);
   source_ = std::move(source);
+}
+
+void PreviewWorker::buildScene(std::shared_ptr<const FrameSource> source) {
+  if (!source || DetailFrameSource::Find(source.get()) == nullptr) return;
+  QMetaObject::invokeMethod(worker_, [this, source = std::move(source)] {
+    c10::InferenceMode inference;
+    try {
+      RunContext ctx;
+      ScenePtr scene = DetailFrameSource::Find(source.get())->ViewportMesh(ctx);
+      emit sceneReady(reinterpret_cast<quintptr>(source.get()), std::move(scene));
+    } catch (const std::exception& e) {
+      AVATAR_LOG(kWarning) << "viewport: no meshes for the OpenGL orbit (" << e.what()
+                           << "); orbiting renders every frame";
+    }
+  });
 }
 
 std::shared_ptr<const FrameSource> PreviewWorker::source() const {

@@ -22,7 +22,14 @@
 #include "core/pipeline/driving.h"
 #include "core/pipeline/frame_source.h"
 
+namespace avatar {
+struct HeadMesh;
+}
+
 namespace avatar::ui {
+
+// The viewport's meshes of one source (DetailFrameSource::ViewportMesh).
+using ScenePtr = std::shared_ptr<const HeadMesh>;
 
 // One viewport request.
 struct PreviewRequest {
@@ -70,6 +77,11 @@ class PreviewWorker : public QObject {
   void setDrivingOptions(const DrivingOptions& options);
   void unloadDriver();
 
+  // Builds the viewport's meshes of `source` on the worker thread when it has the detail path
+  // (DetailFrameSource::ViewportMesh of it or of a source it wraps) and answers with sceneReady;
+  // nothing for other sources. A failure is logged and leaves the viewport on rendered frames.
+  void buildScene(std::shared_ptr<const FrameSource> source);
+
   // Queues a render of `request`; returns its serial. Older queued requests are dropped.
   quint64 request(const PreviewRequest& request);
 
@@ -89,6 +101,8 @@ class PreviewWorker : public QObject {
   // frame in use (-1: none) and, when it replaced a requested frame without a face, the
   // sentence saying so ("" otherwise).
   void drivingNeutralChosen(qint64 frame, const QString& note);
+  // The meshes of the source `source_key` (the FrameSource's address given to buildScene).
+  void sceneReady(quintptr source_key, avatar::ui::ScenePtr scene);
 
  private:
   struct DriverState;
@@ -117,3 +131,4 @@ class PreviewWorker : public QObject {
 }  // namespace avatar::ui
 
 Q_DECLARE_METATYPE(avatar::ui::PreviewFrame)
+Q_DECLARE_METATYPE(avatar::ui::ScenePtr)

@@ -9,6 +9,7 @@
 
 #include "core/model/fusion_net.h"
 #include "core/pipeline/fusion_input.h"
+#include "core/pipeline/head_mesh.h"
 #include "core/pipeline/morphable_expression_source.h"
 #include "core/pipeline/morphable_preview.h"
 #include "core/util/error.h"
@@ -78,6 +79,7 @@ std::string DetailLabel(const std::string& mode) {
 DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, const SourceAnalysis& analysis,
                                      const DetailOptions& options)
     : base_(std::move(base)),
+      analysis_(std::make_shared<const SourceAnalysis>(analysis)),
       model_(analysis.model),
       detail_(ModelOf(analysis), analysis.morphable_fit, analysis.portrait.image_unmatted, analysis.portrait.matte,
               analysis.portrait.eye_mouth_mask, options.face, analysis.portrait.landmarks.points),
@@ -123,6 +125,43 @@ compose::FaceWarp DetailFrameSource::Warp(const FrameRequest& request) const {
   const CameraLabel25 camera = CameraForView(request.view, detail_.fit().camera);
   const morphable::Beta beta = ExpressionBeta(*model_, detail_.fit().beta, request.expression);
   return detail_.Warp(camera, beta, cv::Size(request.width, request.height));
+}
+
+std::shared_ptr<const HeadMesh> DetailFrameSource::ViewportMesh(RunContext& ctx) const {
+  HeadMeshOptions options;
+  options.extend_to_matte = options_.depth.extend_to_matte;
+  // A picture, not a file: the height field continues under the face and stays closed across
+  // depth steps up to 0.1 of the camera distance (stretched, not torn, where a turn opens them).
+  options.under_face = true;
+  options.max_depth_step = 0.1;
+  HeadMesh mesh = BuildHeadMesh(*analysis_, *base_, options, ctx);
+  // Behind the photo's parts, the network's own frames at the source view and turned 30 degrees
+  // each way: what the photo did not see shows the network's colour, as in the rendered frame.
+  for (const double yaw : {0.0, -30.0, 30.0}) {
+    ViewPose view = base_->SourcePose();
+    view.yaw += yaw;
+    TexturedMesh backdrop = NetworkViewMesh(*base_, view, detail_.fit().camera, 128, 0.1, ctx);
+    if (!backdrop.triangles.empty()) mesh.parts.push_back(std::move(backdrop));
+  }
+  return std::make_shared<const HeadMesh>(std::move(mesh));
+}
+
+const DetailFrameSource* DetailFrameSource::Find(const FrameSource* source) {
+  std::shared_ptr<const FrameSource> keep;  // the chain below `source` is owned by it
+  while (source != nullptr) {
+    if (const auto* detail = dynamic_cast<const DetailFrameSource*>(source)) return detail;
+    keep = source->Wrapped();
+    source = keep.get();
+  }
+  return nullptr;
+}
+
+DetailFrameSource::MeshView DetailFrameSource::ViewportView(const FrameRequest& request) const {
+  MeshView view;
+  view.camera = CameraForView(request.view, detail_.fit().camera);
+  const morphable::Beta beta = ExpressionBeta(*model_, detail_.fit().beta, request.expression);
+  view.face = morphable::WorldVertices(*model_, detail_.fit(), &beta);
+  return view;
 }
 
 compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const {

@@ -18,6 +18,8 @@
 
 namespace avatar {
 
+struct HeadMesh;
+
 // The detail paths a frame can take: "head" (the photo warped through the face mesh on the
 // face, and through the network's own depth on hair, ears and neck), "face" (the face mesh only)
 // or "off" (the base source alone).
@@ -82,11 +84,30 @@ class DetailFrameSource : public FrameSource {
   // The depth warp of a rendered base frame of `request` (all invalid without the depth proxy).
   compose::FaceWarp DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const;
   bool HasDepthProxy() const { return depth_ != nullptr; }
+
+  // The studio's OpenGL viewport (issue 34): this source's portrait as textured meshes (the face
+  // mesh with the fit's texture and the head's height field with the photo: BuildHeadMesh of
+  // head_mesh.h over the base source), and behind them the base source's own frames at the
+  // photo's view and turned 30 degrees each way (NetworkViewMesh, parts named "network ..."), so
+  // that a camera move is a redraw, not a render. Costs four base renders (192 and 3 x 128 px);
+  // the caller keeps the result. Throws Cancelled, InvalidInput.
+  std::shared_ptr<const HeadMesh> ViewportMesh(RunContext& ctx) const;
+  // What the viewport draws those meshes with for `request`: its camera (the detail path's own,
+  // CameraForView of the request's view) and the face part's vertices at the request's
+  // expression (a blend of the morphable bases: microseconds).
+  struct MeshView {
+    CameraLabel25 camera{};
+    std::vector<cv::Point3f> face;
+  };
+  MeshView ViewportView(const FrameRequest& request) const;
+  // The detail source `source` is or wraps (through FrameSource::Wrapped), or null.
+  static const DetailFrameSource* Find(const FrameSource* source);
   const FrameSource& base() const { return *base_; }
   std::shared_ptr<const FrameSource> Wrapped() const override { return base_; }
 
  private:
   std::shared_ptr<const FrameSource> base_;
+  std::shared_ptr<const SourceAnalysis> analysis_;  // the portrait's (ViewportMesh)
   const morphable::MorphableModel* model_;
   compose::FaceDetail detail_;
   DetailOptions options_;

@@ -138,7 +138,8 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
   auto add = [&](cv::Point a, cv::Point b, cv::Point c) {
     const int ia = index.at<int>(a), ib = index.at<int>(b), ic = index.at<int>(c);
     if (ia < 0 || ib < 0 || ic < 0) return;
-    if (covered.at<uchar>(a) && covered.at<uchar>(b) && covered.at<uchar>(c)) return;  // the face part's
+    if (!options.under_face && covered.at<uchar>(a) && covered.at<uchar>(b) && covered.at<uchar>(c))
+      return;  // the face part's
     const float da = depth.at<float>(a), db = depth.at<float>(b), dc = depth.at<float>(c);
     if (std::max({da, db, dc}) - std::min({da, db, dc}) > step) return;  // a silhouette
     head.triangles.emplace_back(ia, ib, ic);
@@ -174,6 +175,49 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
   FaceTowards(&used, cam.centre);
   out.parts.push_back(std::move(used));
   return out;
+}
+
+TexturedMesh NetworkViewMesh(const FrameSource& network, const ViewPose& view, const CameraLabel25& source_camera,
+                             int size, double max_depth_step, RunContext& ctx) {
+  AVATAR_CHECK_OPTION(size >= 8 && size <= 2048) << "network view mesh: size " << size << " is outside 8..2048";
+  FrameRequest request;
+  request.view = view;
+  request.width = request.height = size;
+  const RenderedFrame frame = network.Render(request, ctx);
+  TexturedMesh mesh;
+  mesh.name = "network " + std::to_string(static_cast<int>(std::lround(view.yaw)));
+  mesh.texture = frame.bgr;
+  if (frame.depth.empty() || frame.alpha.empty() || frame.bgr.empty()) return mesh;
+  const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(render::CameraForView(view, source_camera));
+  const compose::PixelRays rays(cam);
+  const cv::Size grid(size, size);
+  cv::Mat index(grid, CV_32SC1, cv::Scalar(-1));
+  for (int y = 0; y < size; ++y) {
+    for (int x = 0; x < size; ++x) {
+      const float t = frame.depth.at<float>(y, x);
+      if (frame.alpha.at<uchar>(y, x) < 128 || !std::isfinite(t) || t <= 0.0f) continue;
+      const cv::Vec3d p = rays.Point(x, y, grid, t);
+      index.at<int>(y, x) = static_cast<int>(mesh.positions.size());
+      mesh.positions.emplace_back(static_cast<float>(p[0]), static_cast<float>(p[1]), static_cast<float>(p[2]));
+      mesh.uv.emplace_back(static_cast<float>((x + 0.5) / size), static_cast<float>((y + 0.5) / size));
+    }
+  }
+  const float step = static_cast<float>(max_depth_step * render::kCameraRadius);
+  for (int y = 0; y + 1 < size; ++y) {
+    for (int x = 0; x + 1 < size; ++x) {
+      const cv::Point quad[2][3] = {{{x, y}, {x, y + 1}, {x + 1, y}}, {{x + 1, y}, {x, y + 1}, {x + 1, y + 1}}};
+      for (const auto& tri : quad) {
+        const int ia = index.at<int>(tri[0]), ib = index.at<int>(tri[1]), ic = index.at<int>(tri[2]);
+        if (ia < 0 || ib < 0 || ic < 0) continue;
+        const float da = frame.depth.at<float>(tri[0]), db = frame.depth.at<float>(tri[1]),
+                    dc = frame.depth.at<float>(tri[2]);
+        if (std::max({da, db, dc}) - std::min({da, db, dc}) > step) continue;
+        mesh.triangles.emplace_back(ia, ib, ic);
+      }
+    }
+  }
+  FaceTowards(&mesh, cam.centre);
+  return mesh;
 }
 
 HeadMesh AvatarHeadMesh(std::shared_ptr<const Session> session, const Avatar& avatar, const std::string& data_dir,

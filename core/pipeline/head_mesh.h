@@ -37,6 +37,10 @@ struct HeadMeshOptions {
   bool extend_to_matte = true;
   // Side of the face part's UV texture (the fit's texture is resampled to it).
   int face_texture_size = 512;
+  // Whether the height field continues under the face mesh (the studio's viewport draws it behind
+  // the face, so that a turned face that moves off it shows the photo, not a slit; an exported
+  // file keeps the two parts apart).
+  bool under_face = false;
 
   template <typename V>
   void Visit(V&& v) {
@@ -44,6 +48,7 @@ struct HeadMeshOptions {
     v("max_depth_step", max_depth_step, "Largest depth step inside a triangle (fraction of the camera distance)");
     v("extend_to_matte", extend_to_matte, "Cover the photo's whole person, not only the network's opaque pixels");
     v("face_texture_size", face_texture_size, "Side of the face's UV texture");
+    v("under_face", under_face, "Continue the head's height field under the face mesh");
   }
   // Throws InvalidOptions.
   void Validate() const;
@@ -60,6 +65,14 @@ struct HeadMesh {
 // camera 2.7 from the origin. Throws InvalidInput, Cancelled.
 HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& network, const HeadMeshOptions& options,
                        RunContext& ctx);
+
+// The network's own frame at `view` (RGB and depth at `size` px, CameraForView of the view and
+// `source_camera`) as a height field textured with that frame, over its opaque pixels and closed
+// across depth steps up to `max_depth_step` of the camera distance: what the studio's viewport
+// draws behind the photo's parts, where the photo did not see (the far side of a turned head).
+// Named "network" plus the view's yaw. Empty (no triangles) when nothing is opaque there.
+TexturedMesh NetworkViewMesh(const FrameSource& network, const ViewPose& view, const CameraLabel25& source_camera,
+                             int size, double max_depth_step, RunContext& ctx);
 
 // The same for a saved avatar (Session::LoadAvatar) that keeps its portrait's analysis; one saved
 // before that throws InvalidInput saying to reconstruct the portrait again.

@@ -138,4 +138,39 @@ ViewPose PoseOfCamera(const CameraLabel25& camera) {
   return PoseFromRotation(Multiply(Transpose(FrontalWorldToCam()), Transpose(RotationOf(camera))));
 }
 
+std::array<float, 16> GlClipFromWorld(const CameraLabel25& camera, double near_plane, double far_plane) {
+  CheckCameraLabel(camera);
+  AVATAR_CHECK_OPTION(near_plane > 0.0 && far_plane > near_plane)
+      << "GL depth range needs 0 < near < far, got " << near_plane << " and " << far_plane;
+  // World -> camera: x_c = R^T (p - c), R the cam2world rotation and c its centre.
+  double view[4][4] = {};
+  for (int i = 0; i < 3; ++i) {
+    double t = 0.0;
+    for (int j = 0; j < 3; ++j) {
+      view[i][j] = camera[j * 4 + i];
+      t -= camera[j * 4 + i] * camera[j * 4 + 3];
+    }
+    view[i][3] = t;
+  }
+  view[3][3] = 1.0;
+  // Camera -> clip. Normalised pixel u = fx x/z + s y/z + cx, v = fy y/z + cy; the window's x is
+  // 2u - 1 in NDC and its y (up) is 1 - 2v.
+  const double fx = camera[16], s = camera[17], cx = camera[18], fy = camera[20], cy = camera[21];
+  const double a = (far_plane + near_plane) / (far_plane - near_plane);
+  const double b = -2.0 * far_plane * near_plane / (far_plane - near_plane);
+  const double proj[4][4] = {{2.0 * fx, 2.0 * s, 2.0 * cx - 1.0, 0.0},
+                             {0.0, -2.0 * fy, 1.0 - 2.0 * cy, 0.0},
+                             {0.0, 0.0, a, b},
+                             {0.0, 0.0, 1.0, 0.0}};
+  std::array<float, 16> out{};
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) {
+      double v = 0.0;
+      for (int k = 0; k < 4; ++k) v += proj[r][k] * view[k][c];
+      out[c * 4 + r] = static_cast<float>(v);  // column-major
+    }
+  }
+  return out;
+}
+
 }  // namespace avatar::render

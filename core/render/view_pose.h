@@ -80,4 +80,12 @@ CameraLabel25 CameraForView(const ViewPose& view, const CameraLabel25& source_ca
 // PoseOfCamera(CameraForView(p, any C_s)) has p's angles. Throws InvalidInput (CheckCameraLabel).
 ViewPose PoseOfCamera(const CameraLabel25& camera);
 
+// The OpenGL clip-space matrix (column-major, as glUniformMatrix4fv takes it with transpose
+// false) of `camera` for a viewport showing the whole image: a world point p lands at the
+// window position (u * width, (1 - v) * height) where (u, v) are the label's normalised pixel
+// coordinates of p (x right, y down; pixel i covers [i, i+1)), so a GL frame lines up pixel for
+// pixel with the CPU renderer's. Depth maps [near_plane, far_plane] (camera z) to [-1, 1].
+// Throws InvalidInput (CheckCameraLabel) and InvalidOptions unless 0 < near_plane < far_plane.
+std::array<float, 16> GlClipFromWorld(const CameraLabel25& camera, double near_plane, double far_plane);
+
 }  // namespace avatar::render

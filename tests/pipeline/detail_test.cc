@@ -904,6 +904,84 @@ TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
   EXPECT_THROW(BuildHeadMesh(*analysis_, sphere, bad, ctx), InvalidOptions);
 }
 
+// The studio's OpenGL viewport (issue 34): the detail source's meshes are the face, the head's
+// height field (continued under the face, unlike the exported file's) and the network's own frames
+// at the photo's view and turned 30 degrees each way, lying on the network's surface; the view of
+// a request is the detail path's camera and the face mesh at the request's expression.
+TEST_F(Detail, ViewportMeshesHoldThePhotosPartsThenTheNetworksAndFollowTheExpression) {
+  const auto sphere = std::make_shared<SphereSource>(Base()->SourcePose(), analysis_->morphable_fit.camera);
+  const DetailFrameSource detail(sphere, *analysis_);
+  EXPECT_EQ(DetailFrameSource::Find(&detail), &detail);
+  EXPECT_EQ(DetailFrameSource::Find(sphere.get()), nullptr);
+  RunContext ctx;
+  const std::shared_ptr<const HeadMesh> mesh = detail.ViewportMesh(ctx);
+  ASSERT_EQ(mesh->parts.size(), 5u);
+  EXPECT_EQ(mesh->parts[0].name, "face");
+  EXPECT_EQ(mesh->parts[1].name, "head");
+  for (const TexturedMesh& part : mesh->parts) {
+    part.Validate();
+    EXPECT_GT(part.triangles.size(), 100u) << part.name;
+  }
+  // Under the face: more of the head's height field than the exported mesh keeps.
+  HeadMeshOptions exported;
+  exported.max_depth_step = 0.1;
+  const HeadMesh file = BuildHeadMesh(*analysis_, *sphere, exported, ctx);
+  ASSERT_EQ(file.parts.size(), 2u);
+  EXPECT_GT(mesh->parts[1].triangles.size(), file.parts[1].triangles.size() + 500);
+  // The network's parts lie on its surface (the sphere about (0, 0, -0.1), radius 0.45).
+  for (size_t i = 2; i < mesh->parts.size(); ++i) {
+    const TexturedMesh& part = mesh->parts[i];
+    EXPECT_EQ(part.name.rfind("network", 0), 0u) << part.name;
+    std::vector<double> off;
+    for (const cv::Point3f& p : part.positions) off.push_back(std::abs(cv::norm(cv::Vec3d(p.x, p.y, p.z + 0.1)) - 0.45));
+    std::nth_element(off.begin(), off.begin() + off.size() / 2, off.end());
+    EXPECT_LT(off[off.size() / 2], 0.005) << part.name;
+  }
+  // The view of a request: the detail path's own camera; the face as built at the portrait's
+  // expression, and only the face's lower part moves with jawOpen.
+  FrameRequest request;
+  request.view = detail.SourcePose();
+  request.view.yaw += 20.0;
+  request.width = request.height = 256;
+  const DetailFrameSource::MeshView view = detail.ViewportView(request);
+  EXPECT_EQ(view.camera, render::CameraForView(request.view, analysis_->morphable_fit.camera));
+  ASSERT_EQ(view.face.size(), mesh->parts[0].positions.size());
+  double built = 0.0;
+  for (size_t i = 0; i < view.face.size(); ++i) built = std::max(built, cv::norm(view.face[i] - mesh->parts[0].positions[i]));
+  EXPECT_LT(built, 1e-5);
+  request.expression.controls["jawOpen"] = 0.9f;
+  const DetailFrameSource::MeshView jaw = detail.ViewportView(request);
+  ASSERT_EQ(jaw.face.size(), view.face.size());
+  float top = -1e9f, bottom = 1e9f;
+  for (const cv::Point3f& p : view.face) {
+    top = std::max(top, p.y);
+    bottom = std::min(bottom, p.y);
+  }
+  // Mean vertex move over the lowest and the highest fifth of the face.
+  double low = 0.0, high = 0.0, largest = 0.0;
+  int n_low = 0, n_high = 0;
+  for (size_t i = 0; i < jaw.face.size(); ++i) {
+    const double d = cv::norm(jaw.face[i] - view.face[i]);
+    ASSERT_TRUE(std::isfinite(d));
+    largest = std::max(largest, d);
+    if (view.face[i].y < bottom + 0.2f * (top - bottom)) {
+      low += d;
+      ++n_low;
+    } else if (view.face[i].y > bottom + 0.8f * (top - bottom)) {
+      high += d;
+      ++n_high;
+    }
+  }
+  ASSERT_GT(n_low, 0);
+  ASSERT_GT(n_high, 0);
+  low /= n_low;
+  high /= n_high;
+  std::cout << "[detail] viewport face, jawOpen 0.9: largest vertex move " << largest << ", mean over the chin "
+            << low << ", over the forehead " << high << "\n";
+  EXPECT_GT(largest, 0.005);
+  EXPECT_GT(low, 3.0 * high);
+}
+
 // A network that is opaque far beyond the person (a large sphere: the bundled model's fog): the
 // pixels whose surface point the photo sees against its background are cleared from the frame,
 // the person's are not; carve_matte < 0 keeps the fog. Turned, the frame stays finite.

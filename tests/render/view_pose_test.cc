@@ -130,5 +130,44 @@ TEST(ViewPose, BadPosesAndBadLabelsAreRefused) {
   EXPECT_NO_THROW(CheckCameraLabel(OffCentreLabel()));
 }
 
+// The GL matrix puts a world point where the label's pinhole does (window x = u * width, window
+// y = (1 - v) * height), and its depth maps the near and far planes to -1 and +1.
+TEST(ViewPose, GlClipFromWorldProjectsLikeTheLabel) {
+  for (const CameraLabel25& label : {FrontalLabel(), OffCentreLabel()}) {
+    const std::array<float, 16> m = GlClipFromWorld(label, 1.0, 5.0);
+    for (const std::array<double, 3>& p : std::vector<std::array<double, 3>>{
+             {0.0, 0.0, 0.3}, {0.12, -0.08, 0.1}, {-0.2, 0.15, -0.05}, {0.05, 0.25, -0.3}}) {
+      // The label's own pinhole: camera point R^T (p - c), then the normalised intrinsics.
+      double cam[3] = {0.0, 0.0, 0.0};
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) cam[i] += label[j * 4 + i] * (p[j] - label[j * 4 + 3]);
+      const double u = label[16] * cam[0] / cam[2] + label[17] * cam[1] / cam[2] + label[18];
+      const double v = label[20] * cam[1] / cam[2] + label[21];
+      double clip[4] = {0.0, 0.0, 0.0, 0.0};
+      for (int r = 0; r < 4; ++r)
+        clip[r] = m[0 * 4 + r] * p[0] + m[1 * 4 + r] * p[1] + m[2 * 4 + r] * p[2] + m[3 * 4 + r];
+      EXPECT_NEAR(clip[3], cam[2], 1e-5);
+      EXPECT_NEAR((clip[0] / clip[3] + 1.0) / 2.0, u, 1e-5);
+      EXPECT_NEAR((1.0 - clip[1] / clip[3]) / 2.0, v, 1e-5);
+      const double depth = clip[2] / clip[3];
+      EXPECT_GT(depth, -1.0);
+      EXPECT_LT(depth, 1.0);
+    }
+    // Depth: near maps to -1 and far to +1 along the optical axis.
+    const double c[3] = {label[3], label[7], label[11]};
+    const double axis[3] = {label[2], label[6], label[10]};  // cam2world's z column: the viewing direction
+    for (const auto& [t, expected] : std::vector<std::pair<double, double>>{{1.0, -1.0}, {5.0, 1.0}}) {
+      double clip[4] = {0.0, 0.0, 0.0, 0.0};
+      for (int r = 0; r < 4; ++r) {
+        clip[r] = m[3 * 4 + r];
+        for (int j = 0; j < 3; ++j) clip[r] += m[j * 4 + r] * (c[j] + t * axis[j]);
+      }
+      EXPECT_NEAR(clip[2] / clip[3], expected, 1e-5);
+    }
+  }
+  EXPECT_THROW(GlClipFromWorld(FrontalLabel(), 0.0, 5.0), InvalidOptions);
+  EXPECT_THROW(GlClipFromWorld(FrontalLabel(), 3.0, 2.0), InvalidOptions);
+}
+
 }  // namespace
 }  // namespace avatar::render
