@@ -5,6 +5,7 @@
 // LibTorch (via the morphable model, in common/synthetic_studio.h) first: Qt's `slots` macro breaks its headers.
 #include "common/synthetic_studio.h"
 #include "core/pipeline/detail_source.h"
+#include "core/pipeline/head_mesh.h"
 
 #include <QAbstractButton>
 #include <QAbstractSlider>
@@ -334,6 +335,18 @@ class StudioTest : public QObject {
     QTRY_VERIFY_WITH_TIMEOUT(w.previewWorker()->isIdle() && !w.lastFrame().isNull(), 30000);
     const auto* detail = DetailFrameSource::Find(w.frameSource().get());
     QVERIFY(detail != nullptr);
+    {
+      // What the worker built once for this avatar, built again here to time it.
+      RunContext ctx;
+      QElapsedTimer t;
+      t.start();
+      const std::shared_ptr<const HeadMesh> meshes = detail->ViewportMesh(ctx);
+      size_t triangles = 0;
+      for (const TexturedMesh& part : meshes->parts) triangles += part.triangles.size();
+      qInfo("viewport meshes: %zu parts, %zu triangles, built in %.0f ms", meshes->parts.size(), triangles,
+            static_cast<double>(t.nsecsElapsed()) / 1e6);
+      QVERIFY(meshes->parts.size() >= 2);
+    }
     const int64_t base_before = detail->counts().base_renders;
     const quint64 rendered_before = w.previewWorker()->framesRendered();
     const quint64 mesh_before = w.meshOrbitFrames();
@@ -357,6 +370,16 @@ class StudioTest : public QObject {
       QTest::mouseMove(vp, grab + QPoint(offset, 0));
       QVERIFY(SpinUntil([&] { return swapped.count() > frames; }, 10000));
       ms.push_back(static_cast<double>(step.nsecsElapsed()) / 1e6);
+    }
+    if (qEnvironmentVariableIsSet("AVATAR_TEST_SAVE_SHOTS")) {
+      // Frames of a drag across -30..+30 degrees for the README's GIF (orbit-NNN.png).
+      for (int i = 0; i < 48; ++i) {
+        const int x = i < 24 ? -100 + i * 200 / 23 : 100 - (i - 24) * 200 / 23;
+        QTest::mouseMove(vp, grab + QPoint(x, 0));
+        const QImage picture = vp->grabPicture().copy(vp->imageRect());
+        QVERIFY(picture.save(qEnvironmentVariable("AVATAR_TEST_SAVE_SHOTS") +
+                             QStringLiteral("/orbit-%1.png").arg(i, 3, 10, QLatin1Char('0'))));
+      }
     }
     QTest::mouseMove(vp, grab + QPoint(60, 0));  // about yaw +18 for the comparison below
     QTRY_VERIFY_WITH_TIMEOUT(vp->showingScene(), 5000);
