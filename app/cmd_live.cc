@@ -24,6 +24,10 @@ struct LiveCommandOptions {
   BackendOptions backend;
   CommonOptions common;
 
+  // Live's default: the network takes a new expression on every 4th frame (16-18 fps delivered
+  // at 256 px on 2 cores where every frame gives 10-11; docs/PERFORMANCE.md).
+  LiveCommandOptions() { backend.network_expression_every = 4; }
+
   template <typename V>
   void Visit(V&& v) {
     v("output", output, "Record the driven avatar to this MP4 (no audio)", 'o');

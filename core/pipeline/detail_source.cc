@@ -70,6 +70,8 @@ void DetailOptions::Validate() const {
   depth.Validate();
   AVATAR_CHECK_OPTION(source_depth_size >= 16 && source_depth_size <= 1024)
       << "the source depth size must be within 16..1024, got " << source_depth_size;
+  AVATAR_CHECK_OPTION(base_expression_every >= 1 && base_expression_every <= 100)
+      << "--network-expression-every must be within 1..100, got " << base_expression_every;
 }
 
 std::string DetailLabel(const std::string& mode) {
@@ -194,6 +196,10 @@ struct DetailFrameSource::Kept {
   int width = 0, height = 0;
   RenderedFrame base;  // never modified once kept (Compose works on copies)
   std::atomic<int64_t> base_renders{0}, quick{0};
+  // The expression the base source was last asked for, and the frames rendered with it since
+  // (DetailOptions::base_expression_every).
+  std::optional<FrameExpression> base_expression;
+  int frames_with_it = 0;
 };
 
 DetailFrameSource::Counts DetailFrameSource::counts() const {
@@ -242,7 +248,18 @@ std::optional<RenderedFrame> DetailFrameSource::RenderQuick(const FrameRequest& 
 }
 
 DetailLayers DetailFrameSource::RenderLayers(const FrameRequest& request, RunContext& ctx) const {
-  RenderedFrame base = base_->Render(request, ctx);
+  FrameRequest base_request = request;
+  if (options_.base_expression_every > 1) {
+    std::lock_guard<std::mutex> lock(kept_->mutex);
+    if (kept_->base_expression.has_value() && kept_->frames_with_it < options_.base_expression_every) {
+      base_request.expression = *kept_->base_expression;
+    } else {
+      kept_->base_expression = request.expression;
+      kept_->frames_with_it = 0;
+    }
+    ++kept_->frames_with_it;
+  }
+  RenderedFrame base = base_->Render(base_request, ctx);
   ++kept_->base_renders;
   ctx.ThrowIfCancelled();
   {

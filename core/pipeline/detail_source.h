@@ -40,6 +40,11 @@ struct DetailOptions {
   // Weights of the fusion net that finishes each frame (core/model/fusion_net.h; "" = the
   // geometric composite is the frame).
   std::string fusion;
+  // The base source (the network) is asked for a new expression on every Nth frame at most; in
+  // between it renders the new view at the last expression it was given (the network keeps that
+  // expression's planes: no encoding), under the photo's face at each frame's own expression.
+  // 1 = every frame (exports and the studio); live driving uses 3 (LiveOptions).
+  int base_expression_every = 1;
   // Throws InvalidOptions.
   void Validate() const;
 };

@@ -78,6 +78,7 @@ std::shared_ptr<const FrameSource> WithPhotoDetail(std::shared_ptr<const FrameSo
   DetailOptions detail;
   detail.mode = options.detail;
   detail.fusion = options.fusion;
+  detail.base_expression_every = options.network_expression_every;
   return std::make_shared<DetailFrameSource>(std::move(network), analysis, detail);
 }
 
@@ -127,6 +128,8 @@ void BackendOptions::Validate() const {
   ValidateDetailMode(detail);
   AVATAR_CHECK_OPTION(fusion.empty() || detail != "off")
       << "--fusion finishes the detail path's frames: it needs --detail head or face, not off";
+  AVATAR_CHECK_OPTION(network_expression_every >= 1 && network_expression_every <= 100)
+      << "--network-expression-every must be within 1..100, got " << network_expression_every;
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,

@@ -44,6 +44,9 @@ struct BackendOptions {
   std::string detail = "head";
   // Weights of the fusion net that finishes each detail frame ("" = the geometric composite).
   std::string fusion;
+  // With the detail path: the network encodes a new expression on every Nth frame at most, the
+  // photo's face follows every frame (DetailOptions::base_expression_every; live's default 3).
+  int network_expression_every = 1;
 
   template <typename V>
   void Visit(V&& v) {
@@ -58,6 +61,9 @@ struct BackendOptions {
       "The photo's detail over the neural head: head (warped onto face, hair, ears and neck where the photo saw them), "
       "face (the face only) or off");
     v("fusion", fusion, "Fusion net weights that finish each detail frame (\"\" = the geometric composite)");
+    v("network_expression_every", network_expression_every,
+      "With the detail path, the network takes a new expression on every Nth frame at most (faster; the photo's "
+      "face follows every frame)");
   }
   // Throws InvalidOptions for an unknown config, quality level or detail mode.
   void Validate() const;

@@ -672,8 +672,9 @@ TEST_P(BadInput, ClearErrorDocumentedExitCodeNothingWritten) {
     // The message names the file that is wrong: the first corpus file that is not a valid helper
     // (an option case names its flag instead).
     const auto bad = std::find_if(names.begin(), names.end(), [](const std::string& n) { return n.rfind("valid.", 0) != 0; });
-    if (c.name.rfind("opt_", 0) != 0 && bad != names.end())
+    if (c.name.rfind("opt_", 0) != 0 && bad != names.end()) {
       EXPECT_NE(r.err.find(*bad), std::string::npos) << "the message does not name '" << *bad << "'";
+    }
     for (const auto& word : c.words) EXPECT_NE(r.err.find(word), std::string::npos) << "expected '" << word << "'";
     EXPECT_TRUE(Tree(out).empty()) << "files were written:\n" << ::testing::PrintToString(Tree(out));
   } else {

@@ -136,7 +136,8 @@ class RenamedFlagsRender : public ::testing::Test {
 
 TEST_F(RenamedFlagsRender, ModeAndTheOldPresetFlagRenderTheSameBytes) {
   const std::string warning = Warning("render", "--preset", "--mode");
-  for (const std::string& mode : {"preview", "standard", "final"}) {
+  for (const char* name : {"preview", "standard", "final"}) {
+    const std::string mode = name;
     SCOPED_TRACE(mode);
     const ProcessResult now = Render({"--mode", mode}, mode + "_mode.png");
     ASSERT_EQ(now.exit_code, 0) << now.err;

@@ -904,6 +904,67 @@ TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
   EXPECT_THROW(BuildHeadMesh(*analysis_, sphere, bad, ctx), InvalidOptions);
 }
 
+// Live driving's cheaper frame (DetailOptions::base_expression_every): the base source (the
+// network) is given a new expression on every Nth frame only, the other frames ask it for its last
+// one at their own view; the photo's face still follows every frame's expression.
+TEST_F(Detail, TheNetworkTakesANewExpressionOnEveryNthFrameAndTheFaceOnEvery) {
+  class Recording : public FrameSource {
+   public:
+    explicit Recording(std::shared_ptr<const FrameSource> base) : base_(std::move(base)) {}
+    std::string Label() const override { return base_->Label(); }
+    bool SupportsPose() const override { return true; }
+    std::vector<std::string> ExpressionControls() const override { return base_->ExpressionControls(); }
+    ViewPose SourcePose() const override { return base_->SourcePose(); }
+    RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override {
+      requests.push_back(request);
+      return base_->Render(request, ctx);
+    }
+    mutable std::vector<FrameRequest> requests;
+
+   private:
+    std::shared_ptr<const FrameSource> base_;
+  };
+  const auto recording = std::make_shared<Recording>(Base());
+  DetailOptions options;
+  options.base_expression_every = 3;
+  const DetailFrameSource source(recording, *analysis_, options);
+  const size_t baked = recording->requests.size();  // the source view's depth
+  RunContext ctx;
+  std::vector<cv::Mat> frames;
+  for (int k = 0; k < 7; ++k) {
+    FrameRequest r;
+    r.view = source.SourcePose();
+    r.view.yaw += 2.0 * k;
+    r.width = r.height = 128;
+    r.expression.controls["jawOpen"] = 0.12f * static_cast<float>(k);
+    frames.push_back(source.Render(r, ctx).bgr);
+    ASSERT_EQ(recording->requests.size(), baked + k + 1);
+    const FrameRequest& asked = recording->requests.back();
+    EXPECT_EQ(asked.view, r.view) << k;  // every frame's own view
+    const float expected = 0.12f * static_cast<float>(k - k % 3);  // frames 0, 3, 6 bring a new one
+    EXPECT_FLOAT_EQ(asked.expression.Get("jawOpen"), expected) << k;
+  }
+  // Frames 1 and 2 got frame 0's expression from the network, yet the face opens its mouth more
+  // in each: the composite differs from what frame 0's expression gives at frame 2's view.
+  DetailOptions every;
+  const DetailFrameSource exact(Base(), *analysis_, every);
+  FrameRequest r2;
+  r2.view = source.SourcePose();
+  r2.view.yaw += 4.0;
+  r2.width = r2.height = 128;
+  r2.expression.controls["jawOpen"] = 0.0f;
+  const cv::Mat closed = exact.Render(r2, ctx).bgr;
+  cv::Mat diff;
+  cv::absdiff(frames[2], closed, diff);
+  const int changed = cv::countNonZero(diff.reshape(1) > 16);
+  std::cout << "[detail] jawOpen 0.24 over the network's jawOpen 0: " << changed << " channel values differ from jawOpen 0\n";
+  EXPECT_GT(changed, 100);
+  for (const cv::Mat& f : frames) EXPECT_EQ(f.size(), cv::Size(128, 128));
+  DetailOptions bad;
+  bad.base_expression_every = 0;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
 // The studio's OpenGL viewport (issue 34): the detail source's meshes are the face, the head's
 // height field (continued under the face, unlike the exported file's) and the network's own frames
 // at the photo's view and turned 30 degrees each way, lying on the network's surface; the view of
