@@ -24,9 +24,7 @@ struct LiveCommandOptions {
   BackendOptions backend;
   CommonOptions common;
 
-  // Live's default: the network takes a new expression on every 4th frame (16-18 fps delivered
-  // at 256 px on 2 cores where every frame gives 10-11; docs/PERFORMANCE.md).
-  LiveCommandOptions() { backend.network_expression_every = 4; }
+  LiveCommandOptions() { backend.network_expression_every = kLiveNetworkExpressionEvery; }
 
   template <typename V>
   void Visit(V&& v) {

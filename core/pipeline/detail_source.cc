@@ -148,6 +148,12 @@ std::shared_ptr<const HeadMesh> DetailFrameSource::ViewportMesh(RunContext& ctx)
   return std::make_shared<const HeadMesh>(std::move(mesh));
 }
 
+std::shared_ptr<const DetailFrameSource> DetailFrameSource::WithBaseExpressionEvery(int every) const {
+  DetailOptions options = options_;
+  options.base_expression_every = every;
+  return std::make_shared<const DetailFrameSource>(base_, *analysis_, options);
+}
+
 const DetailFrameSource* DetailFrameSource::Find(const FrameSource* source) {
   std::shared_ptr<const FrameSource> keep;  // the chain below `source` is owned by it
   while (source != nullptr) {

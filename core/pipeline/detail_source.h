@@ -105,6 +105,10 @@ class DetailFrameSource : public FrameSource {
     std::vector<cv::Point3f> face;
   };
   MeshView ViewportView(const FrameRequest& request) const;
+  // The same detail path over the same base with the network taking a new expression on every
+  // `every`th frame (DetailOptions::base_expression_every; the studio's Live source). Renders the
+  // source view's depth again (one base render). Throws InvalidOptions.
+  std::shared_ptr<const DetailFrameSource> WithBaseExpressionEvery(int every) const;
   // The detail source `source` is or wraps (through FrameSource::Wrapped), or null.
   static const DetailFrameSource* Find(const FrameSource* source);
   const FrameSource& base() const { return *base_; }

@@ -99,6 +99,12 @@ class CameraGrabber : public LiveCamera {
   std::thread thread_;
 };
 
+// Live driving asks the network for a new expression on every 4th frame only (the photo's face
+// follows every frame: DetailOptions::base_expression_every): 16-18 fps at 256 px on 2 cores
+// where every frame gives 10-11 (docs/PERFORMANCE.md "Live driving"). `live`'s default and the
+// studio's Live source.
+inline constexpr int kLiveNetworkExpressionEvery = 4;
+
 struct LiveOptions {
   // Camera: device index, /dev/videoN or a video file (CameraGrabber).
   std::string camera = "0";

@@ -960,6 +960,19 @@ TEST_F(Detail, TheNetworkTakesANewExpressionOnEveryNthFrameAndTheFaceOnEvery) {
   std::cout << "[detail] jawOpen 0.24 over the network's jawOpen 0: " << changed << " channel values differ from jawOpen 0\n";
   EXPECT_GT(changed, 100);
   for (const cv::Mat& f : frames) EXPECT_EQ(f.size(), cv::Size(128, 128));
+  // The studio's Live source: the same path over the same base, every 2nd frame.
+  const std::shared_ptr<const DetailFrameSource> every2 = source.WithBaseExpressionEvery(2);
+  const size_t rebaked = recording->requests.size();  // its own source-view depth
+  for (int k = 0; k < 3; ++k) {
+    FrameRequest r;
+    r.view = source.SourcePose();
+    r.width = r.height = 64;
+    r.expression.controls["jawOpen"] = 0.3f * static_cast<float>(k);
+    every2->Render(r, ctx);
+    ASSERT_EQ(recording->requests.size(), rebaked + k + 1);
+    EXPECT_FLOAT_EQ(recording->requests.back().expression.Get("jawOpen"), 0.3f * static_cast<float>(k - k % 2)) << k;
+  }
+  EXPECT_THROW(source.WithBaseExpressionEvery(0), InvalidOptions);
   DetailOptions bad;
   bad.base_expression_every = 0;
   EXPECT_THROW(bad.Validate(), InvalidOptions);

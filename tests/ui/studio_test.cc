@@ -511,6 +511,16 @@ class StudioTest : public QObject {
     QVERIFY2(w.startLive(Sample("samples/cap13_edit2.mp4")), qPrintable(w.lastError()));
     QTRY_VERIFY_WITH_TIMEOUT(frames.count() >= 8, 60000);
     QVERIFY(w.isLive());
+    {
+      // Frames delivered over 5 s in the running studio (printed, not judged).
+      const int before = static_cast<int>(frames.count());
+      QElapsedTimer t;
+      t.start();
+      QTest::qWait(5000);
+      qInfo("studio live: %.1f fps delivered over %.1f s at 256 px (%s)",
+            (frames.count() - before) / (static_cast<double>(t.elapsed()) / 1000.0), t.elapsed() / 1000.0,
+            qPrintable(w.frameTimeText()));
+    }
     Shot(&w, QStringLiteral("studio-live"));
     QSignalSpy back(&w, &MainWindow::frameShown);
     w.stopLive();
