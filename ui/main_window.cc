@@ -538,7 +538,6 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
   preview_->setSource(source_);
   viewport_->setScene(nullptr);
   orbit_pending_ = false;
-  preview_->buildScene(source_);
   if (source_) {
     expression_panel_->setSupported(source_->ExpressionControls());
     viewport_->setLabel(QString::fromStdString(source_->Label()));
@@ -549,6 +548,9 @@ void MainWindow::setFrameSource(std::shared_ptr<const FrameSource> source) {
   }
   export_action_->setEnabled(source_ != nullptr);
   requestPreview();
+  // After the first frame's request (the worker takes them in order): the meshes of the OpenGL
+  // orbit, built once per source.
+  preview_->buildScene(source_);
 }
 
 void MainWindow::requestPreview() {
