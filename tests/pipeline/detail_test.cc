@@ -86,30 +86,32 @@ TEST_F(Detail, SourceViewGivesThePhotoBack) {
   EXPECT_GT(valid_psnr, 35.0);
 }
 
+// A base source that records every request it renders (what the detail path asked the network).
+class RecordingSource : public FrameSource {
+ public:
+  explicit RecordingSource(std::shared_ptr<const FrameSource> base) : base_(std::move(base)) {}
+  std::string Label() const override { return base_->Label(); }
+  bool SupportsPose() const override { return true; }
+  std::vector<std::string> ExpressionControls() const override { return base_->ExpressionControls(); }
+  ViewPose SourcePose() const override { return base_->SourcePose(); }
+  RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override {
+    requests.push_back(request);
+    return base_->Render(request, ctx);
+  }
+  mutable std::vector<FrameRequest> requests;
+
+ private:
+  std::shared_ptr<const FrameSource> base_;
+};
+
 // What an expression change recomputes (issue 34's scheduler): after a full frame, a new
 // expression at the same view is composed over the kept base frame without calling the base
 // source (the network); it is the full frame of that expression except where the base's own
 // expression shows; another view or size has nothing kept.
 TEST_F(Detail, AnExpressionChangeAtTheSameViewSkipsTheBase) {
-  class Counting : public FrameSource {
-   public:
-    explicit Counting(std::shared_ptr<const FrameSource> base) : base_(std::move(base)) {}
-    std::string Label() const override { return base_->Label(); }
-    bool SupportsPose() const override { return true; }
-    std::vector<std::string> ExpressionControls() const override { return base_->ExpressionControls(); }
-    ViewPose SourcePose() const override { return base_->SourcePose(); }
-    RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override {
-      ++calls;
-      return base_->Render(request, ctx);
-    }
-    mutable int calls = 0;
-
-   private:
-    std::shared_ptr<const FrameSource> base_;
-  };
-  const auto counting = std::make_shared<Counting>(Base());
+  const auto counting = std::make_shared<RecordingSource>(Base());
   const DetailFrameSource source(counting, *analysis_);
-  const int baked = counting->calls;  // the source view's depth, once
+  const size_t baked = counting->requests.size();  // the source view's depth, once
   RunContext ctx;
   FrameRequest neutral;
   neutral.view = source.SourcePose();
@@ -117,16 +119,16 @@ TEST_F(Detail, AnExpressionChangeAtTheSameViewSkipsTheBase) {
   neutral.width = neutral.height = 256;
   EXPECT_FALSE(source.RenderQuick(neutral, ctx).has_value());  // nothing kept yet
   source.Render(neutral, ctx);
-  EXPECT_EQ(counting->calls, baked + 1);
+  EXPECT_EQ(counting->requests.size(), baked + 1);
   FrameRequest jaw = neutral;
   jaw.expression.controls["jawOpen"] = 0.9f;
   const std::optional<RenderedFrame> quick = source.RenderQuick(jaw, ctx);
   ASSERT_TRUE(quick.has_value());
   EXPECT_EQ(quick->stages, "face update");
-  EXPECT_EQ(counting->calls, baked + 1);  // no base render
+  EXPECT_EQ(counting->requests.size(), baked + 1);  // no base render
   EXPECT_EQ(source.counts().quick, 1);
   const RenderedFrame full = source.Render(jaw, ctx);
-  EXPECT_EQ(counting->calls, baked + 2);
+  EXPECT_EQ(counting->requests.size(), baked + 2);
   EXPECT_EQ(source.counts().base_renders, 2);
   EXPECT_TRUE(full.stages.empty());
   ASSERT_EQ(quick->bgr.size(), full.bgr.size());
@@ -908,23 +910,7 @@ TEST_F(Detail, HeadMeshLiesOnTheRenderedSurfaceAndLeavesTheFaceToTheFaceMesh) {
 // network) is given a new expression on every Nth frame only, the other frames ask it for its last
 // one at their own view; the photo's face still follows every frame's expression.
 TEST_F(Detail, TheNetworkTakesANewExpressionOnEveryNthFrameAndTheFaceOnEvery) {
-  class Recording : public FrameSource {
-   public:
-    explicit Recording(std::shared_ptr<const FrameSource> base) : base_(std::move(base)) {}
-    std::string Label() const override { return base_->Label(); }
-    bool SupportsPose() const override { return true; }
-    std::vector<std::string> ExpressionControls() const override { return base_->ExpressionControls(); }
-    ViewPose SourcePose() const override { return base_->SourcePose(); }
-    RenderedFrame Render(const FrameRequest& request, RunContext& ctx) const override {
-      requests.push_back(request);
-      return base_->Render(request, ctx);
-    }
-    mutable std::vector<FrameRequest> requests;
-
-   private:
-    std::shared_ptr<const FrameSource> base_;
-  };
-  const auto recording = std::make_shared<Recording>(Base());
+  const auto recording = std::make_shared<RecordingSource>(Base());
   DetailOptions options;
   options.base_expression_every = 3;
   const DetailFrameSource source(recording, *analysis_, options);
