@@ -8,6 +8,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "core/morphable/rasterizer.h"
 #include "core/render/view_pose.h"
 #include "core/util/error.h"
 #include "core/util/push_pull.h"
@@ -229,6 +230,62 @@ FaceWarp DepthDetail::Warp(const ViewDepth& target, const cv::Mat& alpha) const 
   warp.weight = warp.weight.mul(coverage);
   warp.carved = std::move(carved);
   return warp;
+}
+
+cv::Mat MeshRayDepth(const morphable::CameraLabel& camera, const std::vector<cv::Point3f>& world,
+                     const std::vector<cv::Vec3i>& triangles, cv::Size size) {
+  AVATAR_CHECK_INPUT(size.width > 0 && size.height > 0) << "mesh depth: empty image size";
+  const morphable::PinholeCamera cam = morphable::PinholeCamera::FromLabel(camera);
+  std::vector<morphable::ScreenVertex> screen(world.size());
+  for (size_t i = 0; i < world.size(); ++i) {
+    const cv::Vec3d c = cam.ToCamera(cv::Vec3d(world[i].x, world[i].y, world[i].z));
+    const cv::Point2d px = cam.ToPixel(c, size);
+    screen[i] = {px.x, px.y, c[2]};
+  }
+  cv::Mat depth = morphable::Rasterize(screen, triangles, size).depth;  // camera z
+  // z -> distance along the ray: the ray's length per unit of z.
+  const cv::Matx33d k_inv = cam.k_normalised.inv();
+  for (int y = 0; y < size.height; ++y) {
+    float* row = depth.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x) {
+      if (!std::isfinite(row[x])) continue;
+      const cv::Vec3d d = k_inv * cv::Vec3d((x + 0.5) / size.width, (y + 0.5) / size.height, 1.0);
+      row[x] = static_cast<float>(row[x] * cv::norm(d) / d[2]);
+    }
+  }
+  return depth;
+}
+
+double FaceDepthOffset(const cv::Mat& network_depth, const cv::Mat& alpha, const cv::Mat& mesh_depth, int min_alpha,
+                       int min_pixels) {
+  AVATAR_CHECK_INPUT(network_depth.type() == CV_32FC1 && mesh_depth.type() == CV_32FC1 && alpha.type() == CV_8UC1 &&
+                     network_depth.size() == mesh_depth.size() && alpha.size() == mesh_depth.size())
+      << "face depth offset: the network's depth, its opacity and the mesh's depth must be maps of one size";
+  std::vector<float> gaps;
+  for (int y = 0; y < mesh_depth.rows; ++y) {
+    const float* n = network_depth.ptr<float>(y);
+    const float* m = mesh_depth.ptr<float>(y);
+    const uchar* a = alpha.ptr<uchar>(y);
+    for (int x = 0; x < mesh_depth.cols; ++x)
+      if (a[x] >= min_alpha && std::isfinite(n[x]) && std::isfinite(m[x])) gaps.push_back(m[x] - n[x]);
+  }
+  if (static_cast<int>(gaps.size()) < std::max(1, min_pixels)) return 0.0;
+  auto mid = gaps.begin() + static_cast<std::ptrdiff_t>(gaps.size() / 2);
+  std::nth_element(gaps.begin(), mid, gaps.end());
+  return *mid;
+}
+
+cv::Mat FaceOffsetField(const cv::Mat& face, double offset, double reach) {
+  AVATAR_CHECK_INPUT(!face.empty() && face.type() == CV_8UC1) << "face offset field: the face mask must be CV_8UC1";
+  if (reach <= 0.0) return cv::Mat(face.size(), CV_32FC1, cv::Scalar(offset));
+  if (offset == 0.0 || cv::countNonZero(face) == 0) return cv::Mat::zeros(face.size(), CV_32FC1);
+  cv::Mat distance;
+  cv::distanceTransform(face == 0, distance, cv::DIST_L2, cv::DIST_MASK_5);  // 0 on the face
+  const double scale = 1.0 / (reach * face.rows);
+  cv::Mat field;
+  cv::multiply(distance, distance, field, scale * scale);
+  cv::exp(-field, field);
+  return field * offset;
 }
 
 }  // namespace avatar::compose

@@ -14,6 +14,8 @@
 // network leaves transparent but the splat covers is opaque with the splat's depth. At the source
 // view this gives the matted photo back.
 
+#include <vector>
+
 #include <opencv2/core.hpp>
 
 #include "core/compose/face_detail.h"
@@ -101,6 +103,27 @@ class PixelRays {
 // Non-finite depth filled from its finite neighbours and smoothed (sigma = `smoothing` x height);
 // pixels with no finite value within reach stay +inf. For tests and the warp.
 cv::Mat SmoothDepth(const cv::Mat& depth, double smoothing);
+
+// The fitted face mesh's depth at `camera` (world vertices and triangles of the morphable model)
+// in an image of `size`: distance along each pixel's ray, as the network's depth and PixelRays
+// count it; +inf where the mesh does not cover. Throws InvalidInput for a bad camera.
+cv::Mat MeshRayDepth(const morphable::CameraLabel& camera, const std::vector<cv::Point3f>& world,
+                     const std::vector<cv::Vec3i>& triangles, cv::Size size);
+
+// How far to move the network's depth along the rays so that it meets the fitted face mesh: the
+// median of (mesh depth - network depth) over the pixels where the mesh covers and the network
+// is opaque (`alpha` >= min_alpha), all maps of one size. The bundled network's surface lies
+// 0.03-0.05 (of the 2.7 camera distance) behind the face mesh: lifted with it, hair and temples
+// turn on a smaller circle than the face and slide across it at +-30 degrees (issue 32). 0 when
+// fewer than `min_pixels` pixels are shared. Throws InvalidInput for maps of different sizes.
+double FaceDepthOffset(const cv::Mat& network_depth, const cv::Mat& alpha, const cv::Mat& mesh_depth,
+                       int min_alpha = 128, int min_pixels = 32);
+
+// FaceDepthOffset spread over one view (CV_32FC1 of the mask's size): `offset` where `face`
+// (CV_8UC1, non-zero = the face mesh covers) and, away from it, offset x exp(-(d / (reach x
+// height))^2) with d the distance to the face in pixels: the face mesh says where the head is near
+// the face, not at the shoulders. reach <= 0: the offset everywhere; no face: zeros.
+cv::Mat FaceOffsetField(const cv::Mat& face, double offset, double reach);
 
 // Every non-finite pixel of a CV_32FC1 map filled from the finite ones (push-pull over an image
 // pyramid: the nearer values weigh more); finite pixels keep their value. All +inf when no pixel

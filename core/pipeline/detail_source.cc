@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <mutex>
 
 #include <opencv2/imgproc.hpp>
@@ -31,8 +32,9 @@ struct DetailFrameSource::Fusion {
   FusionNetInfo info;
   std::mutex mutex;
 
-  // The finished frame of a geometric composite's layers (BGR8 of the frame's size).
-  cv::Mat Finish(const DetailLayers& layers) {
+  // The finished frame of a geometric composite's layers (BGR8 of the frame's size), at a view
+  // turned `turn_degrees` from the photo's (FusionTurnDegrees).
+  cv::Mat Finish(const DetailLayers& layers, double turn_degrees) {
     torch::NoGradGuard no_grad;
     torch::Tensor x = FusionInputFromBytes(FusionInputBytes(layers).unsqueeze(0));
     const int64_t h = x.size(2), w = x.size(3);
@@ -45,7 +47,7 @@ struct DetailFrameSource::Fusion {
     torch::Tensor y;
     {
       std::lock_guard<std::mutex> lock(mutex);
-      y = net->forward(x);
+      y = net->forward(x, torch::tensor({turn_degrees}, torch::kFloat32));
     }
     return BgrFromRgb(y[0].slice(1, 0, h).slice(2, 0, w).clamp(-1.0, 1.0));
   }
@@ -72,6 +74,8 @@ void DetailOptions::Validate() const {
       << "the source depth size must be within 16..1024, got " << source_depth_size;
   AVATAR_CHECK_OPTION(base_expression_every >= 1 && base_expression_every <= 100)
       << "--network-expression-every must be within 1..100, got " << base_expression_every;
+  AVATAR_CHECK_OPTION(std::isfinite(align_depth_reach) && align_depth_reach <= 10.0)
+      << "the depth alignment's reach must be finite and at most 10 image heights, got " << align_depth_reach;
 }
 
 std::string DetailLabel(const std::string& mode) {
@@ -100,6 +104,19 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     compose::ViewDepth depth{CameraForView(source_view.view, detail_.fit().camera), frame.depth};
     try {
       if (frame.depth.empty()) throw InvalidInput("the head renderer gives no depth");
+      if (options_.align_depth_to_face) {
+        // The network's surface moved along the rays onto the fitted face mesh (FaceDepthOffset),
+        // here and at every target view (DepthWarp): hair and temples then turn with the face.
+        const cv::Mat mesh = compose::MeshRayDepth(depth.camera, morphable::WorldVertices(*model_, detail_.fit()),
+                                                   model_->topology().triangles, frame.depth.size());
+        depth_offset_ = compose::FaceDepthOffset(frame.depth, frame.alpha, mesh);
+        if (depth_offset_ != 0.0) {
+          const cv::Mat field = compose::FaceOffsetField(mesh < std::numeric_limits<float>::infinity(), depth_offset_,
+                                                         options_.align_depth_reach);
+          depth.depth = frame.depth + field;
+        }
+        AVATAR_LOG(kDebug) << "detail: the network's depth moves by " << depth_offset_ << " onto the face mesh";
+      }
       depth_ = std::make_unique<compose::DepthDetail>(analysis.portrait.image_unmatted, analysis.portrait.matte,
                                                       std::move(depth), options_.depth);
     } catch (const InvalidInput& e) {
@@ -132,6 +149,8 @@ compose::FaceWarp DetailFrameSource::Warp(const FrameRequest& request) const {
 std::shared_ptr<const HeadMesh> DetailFrameSource::ViewportMesh(RunContext& ctx) const {
   HeadMeshOptions options;
   options.extend_to_matte = options_.depth.extend_to_matte;
+  options.align_depth_to_face = options_.align_depth_to_face;
+  options.align_depth_reach = options_.align_depth_reach;
   // A picture, not a file: the height field continues under the face and stays closed across
   // depth steps up to 0.1 of the camera distance (stretched, not torn, where a turn opens them).
   options.under_face = true;
@@ -172,7 +191,8 @@ DetailFrameSource::MeshView DetailFrameSource::ViewportView(const FrameRequest& 
   return view;
 }
 
-compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const {
+compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame,
+                                              const cv::Mat& face) const {
   const cv::Size size(request.width, request.height);
   if (depth_ == nullptr || base_frame.depth.empty() || base_frame.alpha.empty()) {
     compose::FaceWarp none;
@@ -182,7 +202,15 @@ compose::FaceWarp DetailFrameSource::DepthWarp(const FrameRequest& request, cons
     none.weight = cv::Mat::zeros(size, CV_32FC1);
     return none;
   }
-  const compose::ViewDepth target{CameraForView(request.view, detail_.fit().camera), base_frame.depth};
+  compose::ViewDepth target{CameraForView(request.view, detail_.fit().camera), base_frame.depth};
+  if (depth_offset_ != 0.0) {
+    cv::Mat coverage = face;
+    if (options_.align_depth_reach > 0.0 && coverage.empty()) coverage = Warp(request).face;
+    if (coverage.empty()) coverage = cv::Mat::zeros(base_frame.depth.size(), CV_8UC1);
+    if (coverage.size() != base_frame.depth.size())
+      cv::resize(coverage, coverage, base_frame.depth.size(), 0, 0, cv::INTER_NEAREST);
+    target.depth = base_frame.depth + compose::FaceOffsetField(coverage, depth_offset_, options_.align_depth_reach);
+  }
   return depth_->Warp(target, base_frame.alpha);
 }
 
@@ -190,7 +218,9 @@ RenderedFrame DetailFrameSource::Render(const FrameRequest& request, RunContext&
   DetailLayers layers = RenderLayers(request, ctx);
   if (fusion_ != nullptr) {
     ctx.ThrowIfCancelled();
-    layers.frame.bgr = fusion_->Finish(layers);
+    const ViewPose source = base_->SourcePose();
+    layers.frame.bgr =
+        fusion_->Finish(layers, FusionTurnDegrees(request.view.yaw - source.yaw, request.view.pitch - source.pitch));
   }
   return std::move(layers.frame);
 }
@@ -292,7 +322,7 @@ DetailLayers DetailFrameSource::Compose(const FrameRequest& request, RenderedFra
   // The face warp first: its changed eyes and mouth are left to the base frame by every layer.
   const compose::FaceWarp warp = Warp(request);
   if (depth_ != nullptr) {
-    compose::FaceWarp depth = DepthWarp(request, frame);
+    compose::FaceWarp depth = DepthWarp(request, frame, warp.face);
     compose::ExcludeRegion(&depth, warp.changed, options_.face.feather);
     compose::ClearCarved(depth, &frame.bgr, &frame.alpha, &frame.depth);
     frame.bgr = compose::Composite(frame.bgr, depth, &frame.alpha);

@@ -37,6 +37,17 @@ struct DetailOptions {
   bool face_fill = true;
   // Size of the base render whose depth is the source view's proxy (once per source).
   int source_depth_size = 128;
+  // The network's depth is moved along the rays by its median gap to the fitted face mesh at the
+  // photo's view (compose::FaceDepthOffset), at the source view and every target view, so that the
+  // hair and temples lifted with it turn with the face. Off by default: measured on the franck
+  // stills it raises identity at +-30 degrees (0.772 / 0.752 -> 0.803 / 0.765 moving the whole
+  // head, 0.797 / 0.764 with reach 0.1), but against real turned frames of the validation clip it
+  // costs the composite 0.2-0.5 dB PSNR and 0.002-0.011 SSIM in every yaw bucket
+  // (docs/PERFORMANCE.md "Moving the network's depth onto the face"): ground truth decides.
+  bool align_depth_to_face = false;
+  // How far from the face mesh the move reaches, as a fraction of the image height
+  // (compose::FaceOffsetField; <= 0: the whole head moves).
+  double align_depth_reach = 0.1;
   // Weights of the fusion net that finishes each frame (core/model/fusion_net.h; "" = the
   // geometric composite is the frame).
   std::string fusion;
@@ -87,7 +98,12 @@ class DetailFrameSource : public FrameSource {
   // The face mesh's warp of one request alone (for tests and measurements).
   compose::FaceWarp Warp(const FrameRequest& request) const;
   // The depth warp of a rendered base frame of `request` (all invalid without the depth proxy).
-  compose::FaceWarp DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame) const;
+  // `face` is the face mesh's coverage of the request (FaceWarp::face; empty = rasterised here).
+  compose::FaceWarp DepthWarp(const FrameRequest& request, const RenderedFrame& base_frame,
+                              const cv::Mat& face = cv::Mat()) const;
+  // What align_depth_to_face added to the network's depth (0 when off, without the head proxy, or
+  // when the mesh and the network share too few pixels at the photo's view).
+  double depth_offset() const { return depth_offset_; }
   bool HasDepthProxy() const { return depth_ != nullptr; }
 
   // The studio's OpenGL viewport (issue 34): this source's portrait as textured meshes (the face
@@ -121,6 +137,7 @@ class DetailFrameSource : public FrameSource {
   compose::FaceDetail detail_;
   DetailOptions options_;
   std::unique_ptr<compose::DepthDetail> depth_;
+  double depth_offset_ = 0.0;  // align_depth_to_face: added to the network's depth (world units)
   struct Fusion;
   std::shared_ptr<Fusion> fusion_;     // the learned finish (options.fusion)
   // The layers of `request` over `base_frame` (the base source's frame of the same view).

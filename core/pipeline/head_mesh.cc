@@ -45,6 +45,8 @@ void HeadMeshOptions::Validate() const {
       << "--max-depth-step must be in (0, 1), got " << max_depth_step;
   AVATAR_CHECK_OPTION(std::isfinite(min_matte) && min_matte >= 0.0f && min_matte <= 1.0f)
       << "the matte threshold must be in [0, 1], got " << min_matte;
+  AVATAR_CHECK_OPTION(std::isfinite(align_depth_reach) && align_depth_reach <= 10.0)
+      << "the depth alignment's reach must be finite and at most 10 image heights, got " << align_depth_reach;
   AVATAR_CHECK_OPTION(face_texture_size >= 16 && face_texture_size <= 4096)
       << "--face-texture-size must be within 16..4096, got " << face_texture_size;
 }
@@ -97,6 +99,12 @@ HeadMesh BuildHeadMesh(const SourceAnalysis& analysis, const FrameSource& networ
     return out;
   }
   cv::Mat depth = frame.depth.clone();
+  if (options.align_depth_to_face) {
+    const cv::Mat mesh = compose::MeshRayDepth(camera, face.positions, face.triangles, frame.depth.size());
+    depth += compose::FaceOffsetField(mesh < std::numeric_limits<float>::infinity(),
+                                      compose::FaceDepthOffset(frame.depth, frame.alpha, mesh),
+                                      options.align_depth_reach);
+  }
   depth.setTo(std::numeric_limits<float>::infinity(), frame.alpha < 128);
   depth = compose::SmoothDepth(depth, options.depth_smoothing);
   if (options.extend_to_matte) depth = compose::FillGaps(depth);

@@ -41,6 +41,10 @@ struct HeadMeshOptions {
   // the face, so that a turned face that moves off it shows the photo, not a slit; an exported
   // file keeps the two parts apart).
   bool under_face = false;
+  // The height field's depth moved onto the fitted face mesh as the detail path moves its proxy
+  // (DetailOptions::align_depth_to_face, off by default there too; compose::FaceDepthOffset).
+  bool align_depth_to_face = false;
+  double align_depth_reach = 0.1;  // DetailOptions::align_depth_reach
 
   template <typename V>
   void Visit(V&& v) {
@@ -49,6 +53,7 @@ struct HeadMeshOptions {
     v("extend_to_matte", extend_to_matte, "Cover the photo's whole person, not only the network's opaque pixels");
     v("face_texture_size", face_texture_size, "Side of the face's UV texture");
     v("under_face", under_face, "Continue the head's height field under the face mesh");
+    v("align_depth_to_face", align_depth_to_face, "Move the head's depth onto the fitted face mesh");
   }
   // Throws InvalidOptions.
   void Validate() const;

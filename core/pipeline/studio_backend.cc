@@ -1,7 +1,9 @@
 #include "core/pipeline/studio_backend.h"
 
+#include <algorithm>
 #include <cctype>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <map>
 #include <mutex>
@@ -71,14 +73,22 @@ std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analys
   return source;
 }
 
+// The detail path's options of `mode` as the backend options say (without the fusion net).
+DetailOptions DetailOptionsOf(const BackendOptions& options, const std::string& mode) {
+  DetailOptions detail;
+  detail.mode = mode;
+  detail.base_expression_every = options.network_expression_every;
+  detail.align_depth_to_face = options.align_depth >= 0.0;
+  detail.align_depth_reach = std::max(0.0, options.align_depth);
+  return detail;
+}
+
 // The photo's detail path over a network source, as options.detail and options.fusion say.
 std::shared_ptr<const FrameSource> WithPhotoDetail(std::shared_ptr<const FrameSource> network,
                                                    const SourceAnalysis& analysis, const BackendOptions& options) {
   if (options.detail == "off") return network;
-  DetailOptions detail;
-  detail.mode = options.detail;
+  DetailOptions detail = DetailOptionsOf(options, options.detail);
   detail.fusion = options.fusion;
-  detail.base_expression_every = options.network_expression_every;
   return std::make_shared<DetailFrameSource>(std::move(network), analysis, detail);
 }
 
@@ -130,6 +140,8 @@ void BackendOptions::Validate() const {
       << "--fusion finishes the detail path's frames: it needs --detail head or face, not off";
   AVATAR_CHECK_OPTION(network_expression_every >= 1 && network_expression_every <= 100)
       << "--network-expression-every must be within 1..100, got " << network_expression_every;
+  AVATAR_CHECK_OPTION(std::isfinite(align_depth) && align_depth <= 10.0)
+      << "--align-depth must be at most 10 (image heights; < 0 = off), got " << align_depth;
 }
 
 std::shared_ptr<const FrameSource> CreateFrameSource(const cv::Mat& portrait, const BackendOptions& options,
@@ -195,9 +207,7 @@ PortraitPaths CreatePortraitPaths(SourceAnalysis analysis, const BackendOptions&
   BackendOptions plain = options;
   plain.detail = "off";
   paths.network = NeuralAvatar(std::move(analysis), plain, std::move(session), ctx);
-  DetailOptions face, head;
-  face.mode = "face";
-  head.mode = "head";
+  const DetailOptions face = DetailOptionsOf(options, "face"), head = DetailOptionsOf(options, "head");
   paths.face = std::make_shared<DetailFrameSource>(paths.network, kept, face);
   const auto bake_start = std::chrono::steady_clock::now();
   paths.detail = std::make_shared<DetailFrameSource>(paths.network, kept, head);

@@ -47,6 +47,10 @@ struct BackendOptions {
   // With the detail path: the network encodes a new expression on every Nth frame at most, the
   // photo's face follows every frame (DetailOptions::base_expression_every; live's default 3).
   int network_expression_every = 1;
+  // With the head detail: move the network's depth onto the fitted face mesh, reaching this
+  // fraction of the image height from the face (0 = the whole head; < 0 = off, the default;
+  // DetailOptions::align_depth_to_face and align_depth_reach).
+  double align_depth = -1.0;
 
   template <typename V>
   void Visit(V&& v) {
@@ -64,6 +68,9 @@ struct BackendOptions {
     v("network_expression_every", network_expression_every,
       "With the detail path, the network takes a new expression on every Nth frame at most (faster; the photo's "
       "face follows every frame)");
+    v("align_depth", align_depth,
+      "With the head detail, move the network's depth onto the fitted face mesh, reaching this fraction of the "
+      "image height from the face (0 = the whole head; < 0 = off)");
   }
   // Throws InvalidOptions for an unknown config, quality level or detail mode.
   void Validate() const;

@@ -136,6 +136,8 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
   backend.checkpoint = options.checkpoint;
   backend.data_dir = options.data_dir;
   backend.fusion = options.fusion;
+  backend.align_depth = options.align_depth;
+  backend.Validate();
 
   const int size = options.size;
   const int shown = std::min<int>(options.contact_photos, static_cast<int>(options.photos.size()));

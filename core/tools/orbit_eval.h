@@ -47,6 +47,8 @@ struct OrbitEvalOptions {
   std::string checkpoint;
   // Fusion net weights: adds the learned path's row ("" = none).
   std::string fusion;
+  // BackendOptions::align_depth of the detail paths (< 0 = off, the default).
+  double align_depth = -1.0;
   // Folder with the installed models and samples (set from the command's --data-dir).
   std::string data_dir;
   face::FaceMetricsOptions face;
@@ -61,6 +63,9 @@ struct OrbitEvalOptions {
     v("contact_photos", contact_photos, "Photos shown in orbit.png");
     v("checkpoint", checkpoint, "Neural model checkpoint (default: the installed or bundled model)");
     v("fusion", fusion, "Fusion net weights: adds the learned path's row");
+    v("align_depth", align_depth,
+      "Detail paths: move the network's depth onto the fitted face mesh, reaching this fraction of the image height "
+      "(0 = the whole head; < 0 = off)");
     // The face analysis of the metrics (AED is not measured here).
     v("face_analysis_size", face.analysis_size, "Long side small images are upsampled to before face analysis");
     v("face_min_score", face.min_score, "Face detection score threshold of the face metrics");
