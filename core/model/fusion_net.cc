@@ -1,5 +1,7 @@
 #include "core/model/fusion_net.h"
 
+#include <cmath>
+
 #include "core/model/checkpoint.h"
 #include "core/util/error.h"
 
@@ -30,12 +32,25 @@ torch::Tensor FusionInputFromBytes(const torch::Tensor& bytes, int64_t image_cha
   return torch::cat({images, x.slice(1, image_channels)}, 1);
 }
 
+double FusionTurnDegrees(double d_yaw, double d_pitch) { return std::hypot(d_yaw, d_pitch); }
+
+torch::Tensor FusionTurnFraction(const torch::Tensor& turn_degrees, int64_t batch) {
+  AVATAR_CHECK_INPUT(turn_degrees.defined() && turn_degrees.numel() == batch)
+      << "the fusion net with a turn input needs one turn per image (" << batch << "), got "
+      << (turn_degrees.defined() ? turn_degrees.numel() : 0);
+  const torch::Tensor t = turn_degrees.reshape({batch, 1, 1, 1}).to(torch::kFloat64).abs() / kFusionFullTurnDegrees;
+  return t.nan_to_num(1.0, 1.0, 1.0).clamp(0.0, 1.0);
+}
+
 void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(in_channels >= 1) << "the fusion net needs input channels, got " << in_channels;
   AVATAR_CHECK_OPTION(widths.size() >= 2) << "the fusion net needs at least two levels, got " << widths.size();
   for (int64_t w : widths) AVATAR_CHECK_OPTION(w >= 1 && w <= 1024) << "fusion net width " << w << " is outside 1..1024";
   AVATAR_CHECK_OPTION(!keep_warped || in_channels >= 8)
       << "keep_warped needs the warp weights in input channels 6 and 7, got " << in_channels << " channels";
+  AVATAR_CHECK_OPTION(!turn || keep_warped) << "the fusion net's turn input opens the kept photo: it needs keep_warped";
+  AVATAR_CHECK_OPTION(!gate_by_opacity || in_channels >= 11)
+      << "gate_by_opacity needs the opacity in input channel 10, got " << in_channels << " channels";
 }
 
 FusionNetImpl::FusionNetImpl(const FusionNetOptions& options) : options_(options) {
@@ -44,7 +59,7 @@ FusionNetImpl::FusionNetImpl(const FusionNetOptions& options) : options_(options
   down_ = register_module("down", nn::ModuleList());
   pool_ = register_module("pool", nn::ModuleList());
   up_ = register_module("up", nn::ModuleList());
-  int64_t in = options_.in_channels;
+  int64_t in = options_.in_channels + (options_.turn ? 1 : 0);
   for (size_t l = 0; l < w.size(); ++l) {
     down_->push_back(DoubleConv(in, w[l]));
     if (l + 1 < w.size()) pool_->push_back(nn::Conv2d(nn::Conv2dOptions(w[l], w[l], 3).stride(2).padding(1)));
@@ -61,7 +76,7 @@ FusionNetImpl::FusionNetImpl(const FusionNetOptions& options) : options_(options
   head_->bias[3].fill_(kMaskBias);
 }
 
-std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor& x) {
+std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor& x, const torch::Tensor& turn_degrees) {
   const int64_t levels = static_cast<int64_t>(options_.widths.size());
   const int64_t factor = int64_t{1} << (levels - 1);
   AVATAR_CHECK_INPUT(x.defined() && x.dim() == 4 && x.size(1) == options_.in_channels && x.size(2) % factor == 0 &&
@@ -70,6 +85,10 @@ std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor
       << ", got " << x.sizes();
   std::vector<torch::Tensor> skips;
   torch::Tensor h = x;
+  if (options_.turn) {
+    const torch::Tensor plane = FusionTurnFraction(turn_degrees, x.size(0)).to(x.options());
+    h = torch::cat({x, plane.expand({x.size(0), 1, x.size(2), x.size(3)})}, 1);
+  }
   for (int64_t l = 0; l < levels; ++l) {
     h = down_[l]->as<nn::Sequential>()->forward(h);
     if (l + 1 < levels) {
@@ -90,14 +109,43 @@ std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor
   return {2.0 * torch::tanh(out.slice(1, 0, 3)), torch::sigmoid(out.slice(1, 3, 4))};
 }
 
-torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x) const {
-  if (!options_.keep_warped) return torch::ones_like(x.slice(1, 0, 1));
-  return 1.0 - std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
+torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x, const torch::Tensor& turn_degrees) const {
+  torch::Tensor open = torch::ones_like(x.slice(1, 0, 1));
+  if (options_.keep_warped) {
+    const torch::Tensor keep = std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
+    open = options_.turn ? 1.0 - keep * (1.0 - FusionTurnFraction(turn_degrees, x.size(0)).to(x.options()))
+                         : 1.0 - keep;
+  }
+  if (options_.gate_by_opacity) open = open * x.slice(1, 10, 11).clamp(0.0, 1.0);
+  return open;
 }
 
-torch::Tensor FusionNetImpl::forward(const torch::Tensor& x) {
-  const auto [residual, mask] = Heads(x);
-  return x.slice(1, 0, 3) + OpenTo(x) * mask * residual;
+torch::Tensor FusionNetImpl::forward(const torch::Tensor& x, const torch::Tensor& turn_degrees) {
+  const auto [residual, mask] = Heads(x, turn_degrees);
+  return x.slice(1, 0, 3) + OpenTo(x, turn_degrees) * mask * residual;
+}
+
+void CopyFusionWeights(const FusionNet& from, FusionNet& to) {
+  AVATAR_CHECK_OPTION(from->options().widths == to->options().widths)
+      << "fusion weights: the stored net's widths differ from this net's";
+  torch::NoGradGuard no_grad;
+  const auto src = from->named_parameters();
+  for (auto& item : to->named_parameters()) {
+    const torch::Tensor* stored = src.find(item.key());
+    AVATAR_CHECK_OPTION(stored != nullptr) << "fusion weights: the stored net has no " << item.key();
+    torch::Tensor& dst = item.value();
+    if (stored->sizes() == dst.sizes()) {
+      dst.copy_(*stored);
+      continue;
+    }
+    const bool one_more_input = dst.dim() == 4 && stored->dim() == 4 && dst.size(0) == stored->size(0) &&
+                                dst.size(1) == stored->size(1) + 1 && dst.size(2) == stored->size(2) &&
+                                dst.size(3) == stored->size(3);
+    AVATAR_CHECK_OPTION(one_more_input) << "fusion weights: " << item.key() << " is " << stored->sizes()
+                                        << " in the stored net and " << dst.sizes() << " here";
+    dst.zero_();
+    dst.narrow(1, 0, stored->size(1)).copy_(*stored);
+  }
 }
 
 int64_t FusionNetImpl::ParameterCount() const {
@@ -115,6 +163,8 @@ void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, cons
                   {"in_channels", net->options().in_channels},
                   {"widths", net->options().widths},
                   {"keep_warped", net->options().keep_warped},
+                  {"turn", net->options().turn},
+                  {"gate_by_opacity", net->options().gate_by_opacity},
                   {"dtype", half_precision ? "float16" : "float32"}};
   torch::NoGradGuard no_grad;
   for (const auto& item : net->named_parameters()) {
@@ -134,6 +184,9 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
     options.in_channels = archive.meta.at("in_channels").get<int64_t>();
     options.widths = archive.meta.at("widths").get<std::vector<int64_t>>();
     options.keep_warped = archive.meta.contains("keep_warped") && archive.meta.at("keep_warped").get<bool>();
+    options.turn = archive.meta.contains("turn") && archive.meta.at("turn").get<bool>();
+    options.gate_by_opacity =
+        archive.meta.contains("gate_by_opacity") && archive.meta.at("gate_by_opacity").get<bool>();
     options.Validate();
   } catch (const std::exception& e) {
     throw ModelLoad(path.string() + ": the fusion net's shape is missing or invalid (" + e.what() +

@@ -4,6 +4,7 @@
 // network render), the network render itself and the masks that say where each came from, and
 // predicts a residual and a blend mask:
 //   out = composite + (1 - keep) * sigmoid(m) * 2 tanh(r),   keep = max(face weight, depth weight)
+// (times the frame's opacity with FusionNetOptions::gate_by_opacity)
 // where keep_warped (the default since fusion-8) holds the photo wherever the composite is the
 // photo: a net trained without it (fusion-1..7, keep = 0) learned to soften the warped photo
 // everywhere and cost 4.8 dB on the photo's own view (docs/training/README.md).
@@ -18,6 +19,11 @@
 //   6    the face warp's blend weight        7  the depth warp's blend weight
 //   8    the face mesh's coverage            9  the target's eye and mouth region
 //   10   the frame's opacity
+// With FusionNetOptions::turn (since fusion-9) one more plane follows, made inside the net from the
+// view's turn away from the photo's (FusionTurnFraction), and the residual may also act on the
+// warped photo in proportion to it: open = 1 - keep x (1 - turn fraction). At the photo's own view
+// the photo is kept exactly; at a turned view the net may soften warped texture that no longer
+// lines up (the SSIM study of issue 32: a blur that grows with the turn beats the sharp warp).
 // Architecture: per level two 3x3 convs with LeakyReLU(0.2), a stride-2 3x3 conv down; bilinear
 // x2 up, concatenation with the level's skip, two 3x3 convs; a 1x1 head to 4 channels.
 
@@ -30,6 +36,11 @@
 namespace avatar {
 
 inline constexpr int64_t kFusionInputChannels = 11;
+
+// The turn at which the residual may act on the warped photo in full (degrees).
+inline constexpr double kFusionFullTurnDegrees = 45.0;
+// The angle between a view and the photo's, from their yaw and pitch differences (degrees).
+double FusionTurnDegrees(double d_yaw, double d_pitch);
 
 // Number of image channels at the front of the input (composite and network render); the rest
 // are masks.
@@ -49,6 +60,15 @@ struct FusionNetOptions {
   // and 7): where the composite is the photo, the output is the composite exactly. Weights files
   // without the flag (before fusion-8) load with it off.
   bool keep_warped = true;
+  // The view's turn from the photo's is an input and opens the warped photo to the residual in
+  // proportion (1 - keep x (1 - min(1, turn / kFusionFullTurnDegrees))); needs keep_warped. The
+  // net then needs the turn with every input (forward's turn_degrees). Off in files before fusion-9.
+  bool turn = false;
+  // The residual acts only on the frame's opaque pixels, in proportion to the opacity (input
+  // channel 10): where the composite is transparent its colour is the empty background, which the
+  // net has no business changing (fusion-8 lost 2.3 dB on the photo's own view there and at the
+  // outline). Off in files before fusion-10.
+  bool gate_by_opacity = false;
   // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels,
   // keep_warped without the two warp-weight channels).
   void Validate() const;
@@ -57,13 +77,15 @@ struct FusionNetOptions {
 class FusionNetImpl : public torch::nn::Module {
  public:
   explicit FusionNetImpl(const FusionNetOptions& options = {});
-  // x [B,in_channels,H,W] (H and W divisible by 2^(levels-1)) -> the finished image [B,3,H,W].
-  // Throws InvalidInput for other shapes.
-  torch::Tensor forward(const torch::Tensor& x);
+  // x [B,in_channels,H,W] (H and W divisible by 2^(levels-1)) and the views' turns from the
+  // photo's in degrees ([B], FusionTurnDegrees; read only by a net with options().turn, which
+  // requires them) -> the finished image [B,3,H,W]. Throws InvalidInput for other shapes.
+  torch::Tensor forward(const torch::Tensor& x, const torch::Tensor& turn_degrees = {});
   // The residual and the blend mask before they are combined: {r [B,3,H,W], m [B,1,H,W] in (0,1)}.
-  std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x);
-  // Where the residual may act, [B,1,H,W] in [0,1]: 1 - keep (all ones without keep_warped).
-  torch::Tensor OpenTo(const torch::Tensor& x) const;
+  std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x, const torch::Tensor& turn_degrees = {});
+  // Where the residual may act, [B,1,H,W] in [0,1]: 1 - keep (all ones without keep_warped), and
+  // with options().turn 1 - keep x (1 - turn fraction); times the opacity with gate_by_opacity.
+  torch::Tensor OpenTo(const torch::Tensor& x, const torch::Tensor& turn_degrees = {}) const;
   const FusionNetOptions& options() const { return options_; }
   int64_t ParameterCount() const;
 
@@ -88,6 +110,17 @@ struct FusionNetInfo {
 // atomically. Throws InvalidInput for non-finite weights, Io.
 void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, const FusionNetInfo& info,
                    bool half_precision);
+// The turn input of a net with options().turn: [B] degrees -> [B,1,1,1] in [0,1] (turn over
+// kFusionFullTurnDegrees, clamped; non-finite turns count as full). Throws InvalidInput unless
+// there is one turn per image.
+torch::Tensor FusionTurnFraction(const torch::Tensor& turn_degrees, int64_t batch);
+
+// Copies `from`'s weights into `to` (a fresh run's --init): tensors of equal shape as they are;
+// the first convolution of a net with one more input channel (turn) gets the stored weights for
+// the stored channels and zeros for the new one, so it computes what `from` did. Throws
+// InvalidOptions when the widths differ or another tensor does not fit.
+void CopyFusionWeights(const FusionNet& from, FusionNet& to);
+
 // Reads a file of SaveFusionNet into a float32 net. Throws Io (missing), ModelLoad (malformed,
 // another kind, tensors that do not fit the stored widths).
 FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info = nullptr);

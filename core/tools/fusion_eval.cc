@@ -84,7 +84,7 @@ FusionEvalReport EvaluateFusionSet(const FusionEvalOptions& options, RunContext&
     const torch::Tensor target = FusionInputFromBytes(s.target.narrow(0, i, m), 3);
     std::vector<torch::Tensor> outs = {x.slice(1, 3, 6), FusionInputFromBytes(s.preview.narrow(0, i, m), 3),
                                        x.slice(1, 0, 3)};
-    if (net) outs.push_back(net->forward(x).clamp(-1.0, 1.0));
+    if (net) outs.push_back(net->forward(x, s.Turn().narrow(0, i, m)).clamp(-1.0, 1.0));
     const torch::Tensor valid = (torch::max(x.slice(1, 6, 7), x.slice(1, 7, 8)) > 0.5).to(torch::kFloat32);
     const torch::Tensor masks[] = {torch::Tensor(), valid, 1.0 - valid};
     // Features once per image; each region is a mask over the same feature distance maps.

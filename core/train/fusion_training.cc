@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/io/atomic_file.h"
+#include "core/train/metrics.h"
 #include "core/train/trainer.h"
 #include "core/util/error.h"
 #include "core/util/progress_line.h"
@@ -36,7 +37,7 @@ std::string FusionHms(double seconds) {
 // The crops of one step: deterministic in (seed, step), so a resumed run draws what the first
 // would have.
 struct FusionBatch {
-  torch::Tensor input, target;
+  torch::Tensor input, target, turn;
 };
 
 FusionBatch DrawFusionBatch(const FusionSamples& s, const FusionTrainOptions& o, int64_t step) {
@@ -45,8 +46,10 @@ FusionBatch DrawFusionBatch(const FusionSamples& s, const FusionTrainOptions& o,
   std::uniform_int_distribution<int64_t> pick(0, n - 1), at(0, side - crop);
   std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
   std::vector<torch::Tensor> inputs, targets;
+  std::vector<int64_t> picked;
   for (int b = 0; b < o.batch; ++b) {
     const int64_t i = pick(rng), y = at(rng), x = at(rng);
+    picked.push_back(i);
     const bool flip = (rng() & 1u) != 0;
     torch::Tensor in = FusionInputFromBytes(s.input[i].narrow(1, y, crop).narrow(2, x, crop).unsqueeze(0));
     torch::Tensor tg = FusionInputFromBytes(s.target[i].narrow(1, y, crop).narrow(2, x, crop).unsqueeze(0), 3);
@@ -79,7 +82,7 @@ FusionBatch DrawFusionBatch(const FusionSamples& s, const FusionTrainOptions& o,
     inputs.push_back(in);
     targets.push_back(tg);
   }
-  return {torch::cat(inputs), torch::cat(targets)};
+  return {torch::cat(inputs), torch::cat(targets), s.Turn().index_select(0, torch::tensor(picked))};
 }
 
 double FusionGradNorm(const FusionNet& net) {
@@ -120,6 +123,11 @@ int64_t LoadFusionState(const fs::path& path, FusionNet& net, torch::optim::Adam
 }
 
 }  // namespace
+
+torch::Tensor FusionSamples::Turn() const {
+  if (!meta.defined()) return torch::zeros({0});
+  return torch::hypot(meta.select(1, 0), meta.select(1, 1));  // FusionTurnDegrees, per row
+}
 
 FusionSamples LoadFusionSplit(const std::string& dir, const std::string& split) {
   AVATAR_CHECK_OPTION(split == "train" || split == "val") << "a fusion split is train or val, got '" << split << "'";
@@ -166,7 +174,7 @@ FusionSamples LoadFusionSplit(const std::string& dir, const std::string& split) 
 
 void FusionLossOptions::Validate() const {
   AVATAR_CHECK_OPTION(std::isfinite(l1) && l1 >= 0 && std::isfinite(perceptual) && perceptual >= 0 &&
-                      l1 + perceptual > 0)
+                      std::isfinite(ssim) && ssim >= 0 && l1 + perceptual + ssim > 0)
       << "the fusion loss weights must be >= 0 and not all 0";
 }
 
@@ -180,7 +188,9 @@ FusionLoss ComputeFusionLoss(const torch::Tensor& prediction, const torch::Tenso
   out.l1 = (prediction - target).abs().mean();
   out.perceptual = perceptual != nullptr ? perceptual->Distance(prediction, target).mean()
                                          : torch::zeros({}, prediction.options());
-  out.total = options.l1 * out.l1 + options.perceptual * out.perceptual;
+  out.ssim = options.ssim > 0 ? 1.0 - train::SsimPerImage(prediction, target).mean()
+                               : torch::zeros({}, prediction.options());
+  out.total = options.l1 * out.l1 + options.perceptual * out.perceptual + options.ssim * out.ssim;
   return out;
 }
 
@@ -201,6 +211,8 @@ void FusionTrainOptions::Validate() const {
   FusionNetOptions net;
   net.widths = widths;
   net.keep_warped = keep_warped;
+  net.turn = turn;
+  net.gate_by_opacity = gate_by_opacity;
   net.Validate();
 }
 
@@ -219,17 +231,20 @@ FusionValidation ValidateFusion(FusionNet& net, const FusionSamples& samples, in
     const torch::Tensor idx = torch::tensor(std::vector<int64_t>(index.begin() + k, index.begin() + k + m));
     const torch::Tensor x = FusionInputFromBytes(samples.input.index_select(0, idx));
     const torch::Tensor y = FusionInputFromBytes(samples.target.index_select(0, idx), 3);
-    const FusionLoss a = ComputeFusionLoss(net->forward(x), y, perceptual, options);
+    const FusionLoss a = ComputeFusionLoss(net->forward(x, samples.Turn().index_select(0, idx)), y, perceptual, options);
     const FusionLoss b = ComputeFusionLoss(x.slice(1, 0, 3), y, perceptual, options);
     v.loss += a.total.item<double>() * m;
     v.l1 += a.l1.item<double>() * m;
     v.perceptual += a.perceptual.item<double>() * m;
+    v.ssim += a.ssim.item<double>() * m;
+    v.composite_ssim += b.ssim.item<double>() * m;
     v.composite_loss += b.total.item<double>() * m;
     v.composite_l1 += b.l1.item<double>() * m;
     v.composite_perceptual += b.perceptual.item<double>() * m;
   }
   v.samples = n;
-  for (double* f : {&v.loss, &v.l1, &v.perceptual, &v.composite_loss, &v.composite_l1, &v.composite_perceptual})
+  for (double* f : {&v.loss, &v.l1, &v.perceptual, &v.ssim, &v.composite_loss, &v.composite_l1,
+                    &v.composite_perceptual, &v.composite_ssim})
     *f /= static_cast<double>(n);
   if (was_training) net->train();
   return v;
@@ -251,6 +266,8 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
   FusionNetOptions net_options;
   net_options.widths = o.widths;
   net_options.keep_warped = o.keep_warped;
+  net_options.turn = o.turn;
+  net_options.gate_by_opacity = o.gate_by_opacity;
   torch::manual_seed(o.seed);  // a fresh run's initial weights depend on the seed only
   FusionNet net(net_options);
   torch::optim::Adam adam(net->parameters(), torch::optim::AdamOptions(o.lr).betas({0.9, 0.99}));
@@ -262,11 +279,11 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
   } else if (!o.init.empty()) {
     FusionNetInfo info;
     FusionNet init = LoadFusionNet(o.init, &info);
-    AVATAR_CHECK_OPTION(info.options.widths == o.widths) << o.init << ": its widths differ from this run's";
-    torch::NoGradGuard no_grad;
-    auto dst = net->parameters();
-    auto src = init->parameters();
-    for (size_t k = 0; k < dst.size(); ++k) dst[k].copy_(src[k]);
+    try {
+      CopyFusionWeights(init, net);
+    } catch (const InvalidOptions& e) {
+      throw InvalidOptions(o.init + ": cannot start this run from it: " + e.what());
+    }
     step = info.step;
   }
   PerceptualOptions po;
@@ -302,7 +319,9 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
                              {"perceptual", v.perceptual},
                              {"composite_loss", v.composite_loss},
                              {"composite_l1", v.composite_l1},
-                             {"composite_perceptual", v.composite_perceptual}}}};
+                             {"composite_perceptual", v.composite_perceptual},
+                             {"ssim", v.ssim},
+                             {"composite_ssim", v.composite_ssim}}}};
     log << line.dump() << "\n";
     log.flush();
   };
@@ -325,7 +344,8 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
       const auto t0 = Clock::now();
       const FusionBatch batch = DrawFusionBatch(train, o, step);
       adam.zero_grad();
-      const FusionLoss loss = ComputeFusionLoss(net->forward(batch.input), batch.target, perceptual.get(), o.loss);
+      const FusionLoss loss =
+          ComputeFusionLoss(net->forward(batch.input, batch.turn), batch.target, perceptual.get(), o.loss);
       const double total = loss.total.item<double>();
       bool skipped = !std::isfinite(total);
       double grad_norm = 0.0;
@@ -354,7 +374,10 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
       mean_step += (seconds - mean_step) / static_cast<double>(std::min<int64_t>(timed, 20));
       nlohmann::json line = {{"step", step},
                              {"loss", total},
-                             {"terms", {{"l1", loss.l1.item<double>()}, {"perceptual", loss.perceptual.item<double>()}}},
+                             {"terms",
+                              {{"l1", loss.l1.item<double>()},
+                               {"perceptual", loss.perceptual.item<double>()},
+                               {"ssim", loss.ssim.item<double>()}}},
                              {"grad_norm", grad_norm},
                              {"lr", o.lr},
                              {"color_jitter", o.color_jitter},

@@ -28,6 +28,8 @@ struct FusionSamples {
   torch::Tensor preview;  // [N,3,S,S] RGB, the morphable preview
   torch::Tensor meta;     // [N,4] float: d yaw, d pitch (degrees), expression distance, kind (0 photo, 1 clip, 2 synthetic)
   int64_t size() const { return input.defined() ? input.size(0) : 0; }
+  // The turn of each frame's view from its photo's (FusionTurnDegrees of meta's d yaw and d pitch), [N].
+  torch::Tensor Turn() const;
 };
 
 // Every file of `split` ("train" or "val") of the fusion set in `dir`, in file-name order.
@@ -38,13 +40,14 @@ FusionSamples LoadFusionSplit(const std::string& dir, const std::string& split);
 struct FusionLossOptions {
   double l1 = 1.0;          // weight of the mean absolute error (images in [-1,1])
   double perceptual = 0.5;  // weight of the MobileNetV2 perceptual distance
+  double ssim = 0.0;        // weight of 1 - SSIM (11 px Gaussian window, as the eval's)
   void Validate() const;
 };
 
-// The loss of predictions against targets ([B,3,H,W] in [-1,1]): {total [], l1 [], perceptual []}.
-// `perceptual` may be null (weight must then be 0).
+// The loss of predictions against targets ([B,3,H,W] in [-1,1]): {total [], l1 [], perceptual [],
+// ssim [] (1 - SSIM; 0 when its weight is 0)}. `perceptual` may be null (weight must then be 0).
 struct FusionLoss {
-  torch::Tensor total, l1, perceptual;
+  torch::Tensor total, l1, perceptual, ssim;
 };
 FusionLoss ComputeFusionLoss(const torch::Tensor& prediction, const torch::Tensor& target,
                              const PerceptualLoss* perceptual, const FusionLossOptions& options);
@@ -68,6 +71,8 @@ struct FusionTrainOptions {
   int max_bad_steps = 20;         // non-finite steps in a row before the run stops
   std::vector<int64_t> widths = {16, 32, 64, 96};
   bool keep_warped = true;  // FusionNetOptions::keep_warped; --init may start from a net without it
+  bool turn = false;        // FusionNetOptions::turn; --init may start from a net without it
+  bool gate_by_opacity = false;  // FusionNetOptions::gate_by_opacity
   bool progress = true;
   std::string data_dir;  // where the MobileNetV2 weights are ("" = default)
 
@@ -85,7 +90,10 @@ struct FusionTrainOptions {
     v("color_jitter", color_jitter, "Per-crop colour change (channel order, gain and offset) of the images; 0 = off");
     v("l1", loss.l1, "Weight of the L1 term");
     v("perceptual", loss.perceptual, "Weight of the MobileNetV2 perceptual term");
+    v("ssim", loss.ssim, "Weight of the 1 - SSIM term");
     v("keep_warped", keep_warped, "Keep the photo wherever its warp reached (the residual acts only elsewhere)");
+    v("turn", turn, "Give the net the view's turn from the photo and let it act on the warped photo in proportion");
+    v("gate_by_opacity", gate_by_opacity, "Let the residual act only on the frame's opaque pixels");
     v("seed", seed, "Seed of the crops and batches");
     v("validate_every", validate_every, "Steps between validations");
     v("validate_samples", validate_samples, "Validation frames");
@@ -96,8 +104,8 @@ struct FusionTrainOptions {
 // Validation figures of the net against the geometric composite on whole frames.
 struct FusionValidation {
   int64_t samples = 0;
-  double loss = 0.0, l1 = 0.0, perceptual = 0.0;                     // the net's output
-  double composite_loss = 0.0, composite_l1 = 0.0, composite_perceptual = 0.0;  // its input composite
+  double loss = 0.0, l1 = 0.0, perceptual = 0.0, ssim = 0.0;                                // the net's output
+  double composite_loss = 0.0, composite_l1 = 0.0, composite_perceptual = 0.0, composite_ssim = 0.0;  // its input
 };
 // The net in eval mode on `samples` (at most `count` of them, evenly spread; whole frames).
 FusionValidation ValidateFusion(FusionNet& net, const FusionSamples& samples, int count,

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iostream>
 #include <limits>
+#include <string>
 
 #include <torch/torch.h>
 
@@ -80,11 +81,89 @@ TEST(FusionNet, KeepsThePhotoWhereTheWarpReached) {
   EXPECT_NO_THROW(bad.Validate());
 }
 
-// d(loss)/d(parameter) against central differences, in double, for entries of every parameter.
-TEST(FusionNet, GradientMatchesFiniteDifferences) {
+// With the turn input (fusion-9): at the photo's own view (turn 0) the warped photo is kept
+// exactly as without it; at a turned view the residual reaches the warped photo in proportion to
+// the turn (a third at 15 degrees, all of it from 45 on); the turn is an input plane, so the heads
+// change with it. The turn is required, one per image; a stored net without the turn starts a
+// turn net that computes what it did (the new input's weights are zero).
+TEST(FusionNet, TheTurnOpensTheWarpedPhotoInProportion) {
+  torch::manual_seed(17);
+  FusionNetOptions o;
+  o.widths = {4, 8};
+  o.turn = true;
+  FusionNet net(o);
+  {
+    torch::NoGradGuard no_grad;
+    for (auto& p : net->named_parameters())
+      if (p.key() == "head.bias") p.value().fill_(1.0);
+  }
+  torch::Tensor x = torch::rand({3, kFusionInputChannels, 16, 16}) * 2 - 1;
+  x.slice(1, 6, 8).zero_();
+  x.slice(1, 6, 7).slice(3, 0, 8).fill_(1.0);  // the photo's face warp reached columns 0-7
+  const torch::Tensor turn = torch::tensor({0.0f, -15.0f, 60.0f});
+  torch::NoGradGuard no_grad;
+  const torch::Tensor composite = x.slice(1, 0, 3);
+  const torch::Tensor y = net->forward(x, turn);
+  const auto [r, m] = net->Heads(x, turn);
+  const torch::Tensor full = m * r;
+  EXPECT_GT(full.abs().min().item<double>(), 0.1);
+  EXPECT_TRUE(torch::equal(y[0].slice(2, 0, 8), composite[0].slice(2, 0, 8)));
+  EXPECT_TRUE(torch::allclose(y[1].slice(2, 0, 8), (composite + full / 3.0)[1].slice(2, 0, 8), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(y[2].slice(2, 0, 8), (composite + full)[2].slice(2, 0, 8), 1e-5, 1e-6));
+  for (int b = 0; b < 3; ++b)
+    EXPECT_TRUE(torch::allclose(y[b].slice(2, 8, 16), (composite + full)[b].slice(2, 8, 16), 1e-5, 1e-6)) << b;
+  const auto [r_same, m_same] = net->Heads(x, torch::zeros({3}));
+  EXPECT_GT((m_same - m).abs().max().item<double>(), 1e-6);  // the turn is seen by the heads (the residual head starts at 0)
+  EXPECT_THROW(net->forward(x), InvalidInput);
+  EXPECT_THROW(net->forward(x, torch::zeros({2})), InvalidInput);
+  EXPECT_TRUE(torch::isfinite(net->forward(x, torch::tensor({NAN, INFINITY, -1e9f}))).all().item<bool>());
+  FusionNetOptions bad = o;
+  bad.keep_warped = false;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+  // gate_by_opacity: nothing changes where the frame is transparent, half the residual at half
+  // opacity, the rest as without the gate.
+  FusionNetOptions gated_options = o;
+  gated_options.gate_by_opacity = true;
+  FusionNet gated(gated_options);
+  CopyFusionWeights(net, gated);
+  torch::Tensor xo = x.clone();
+  xo.slice(1, 10, 11).fill_(1.0);
+  xo.slice(1, 10, 11).slice(2, 0, 4).fill_(0.0);  // rows 0-3 transparent
+  xo.slice(1, 10, 11).slice(2, 4, 8).fill_(0.5);  // rows 4-7 half opaque
+  const torch::Tensor yg = gated->forward(xo, turn), yu = net->forward(xo, turn);
+  const torch::Tensor cg = xo.slice(1, 0, 3);
+  EXPECT_TRUE(torch::equal(yg.slice(2, 0, 4), cg.slice(2, 0, 4)));
+  EXPECT_TRUE(torch::allclose(yg.slice(2, 4, 8), (cg + 0.5 * (yu - cg)).slice(2, 4, 8), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(yg.slice(2, 8, 16), yu.slice(2, 8, 16), 1e-5, 1e-6));
+  FusionNetOptions few = gated_options;
+  few.in_channels = 10;
+  few.keep_warped = false;
+  few.turn = false;
+  EXPECT_THROW(few.Validate(), InvalidOptions);
+
+  FusionNetOptions plain = o;
+  plain.turn = false;
+  FusionNet stored(plain);
+  FusionNet started(o);
+  CopyFusionWeights(stored, started);
+  EXPECT_TRUE(torch::allclose(started->forward(x, torch::zeros({3})), stored->forward(x), 1e-5, 1e-6));
+  FusionNetOptions other = o;
+  other.widths = {4, 6};
+  FusionNet different(other);
+  EXPECT_THROW(CopyFusionWeights(stored, different), InvalidOptions);
+  EXPECT_THROW(CopyFusionWeights(started, stored), InvalidOptions);  // one input fewer: not a start
+}
+
+// d(loss)/d(parameter) against central differences, in double, for entries of every parameter,
+// with and without the turn input.
+class FusionNetGradient : public ::testing::TestWithParam<bool> {};
+
+TEST_P(FusionNetGradient, MatchesFiniteDifferences) {
   torch::manual_seed(5);
   FusionNetOptions o;
   o.widths = {3, 4};
+  o.turn = GetParam();
+  o.gate_by_opacity = GetParam();
   FusionNet net(o);
   net->to(torch::kFloat64);
   {
@@ -95,9 +174,12 @@ TEST(FusionNet, GradientMatchesFiniteDifferences) {
       if (p.key() == "head.weight") p.value().normal_(0.0, 1.0);
     }
   }
-  const torch::Tensor x = torch::rand({1, kFusionInputChannels, 4, 6}, torch::kFloat64) * 2 - 1;
+  torch::Tensor x = torch::rand({1, kFusionInputChannels, 4, 6}, torch::kFloat64) * 2 - 1;
+  x.slice(1, 6, 8) = x.slice(1, 6, 8).abs();  // warp weights in [0,1], partly open
+  x.slice(1, 10, 11) = x.slice(1, 10, 11).abs();  // opacity in [0,1]
+  const torch::Tensor turn = torch::tensor({20.0}, torch::kFloat64);
   const torch::Tensor w = torch::randn({1, 3, 4, 6}, torch::kFloat64);
-  auto loss = [&] { return (net->forward(x) * w).sum(); };
+  auto loss = [&] { return (net->forward(x, turn) * w).sum(); };
   net->zero_grad();
   loss().backward();
   int checked = 0;
@@ -127,9 +209,13 @@ TEST(FusionNet, GradientMatchesFiniteDifferences) {
       ++checked;
     }
   }
-  std::cout << "gradient check: " << checked << " entries, worst relative error " << worst << "\n";
+  std::cout << "gradient check" << (GetParam() ? " (turn, opacity gate)" : "") << ": " << checked
+            << " entries, worst relative error " << worst << "\n";
   EXPECT_GT(checked, 20);
 }
+
+INSTANTIATE_TEST_SUITE_P(FusionNet, FusionNetGradient, ::testing::Bool(),
+                         [](const ::testing::TestParamInfo<bool>& info) { return info.param ? "TurnAndOpacityGate" : "Plain"; });
 
 // A fixed task like the real one: the composite equals the target except in a hole the photo's
 // warp did not reach (its weight channel is 0 there), where it carries a colour cast; the network
@@ -197,12 +283,25 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
   EXPECT_TRUE(read.options.keep_warped);
   EXPECT_EQ(read.fingerprint.size(), 16u);
   {
+    // The flags a file stores: an old net without them, a fusion-10 net with both.
+    auto stored = [&](const FusionNetOptions& options, const std::string& name) {
+      SaveFusionNet(dir / name, FusionNet(options), info, true);
+      FusionNetInfo read_back;
+      LoadFusionNet(dir / name, &read_back);
+      return read_back.options;
+    };
     FusionNetOptions old = o;
     old.keep_warped = false;
-    SaveFusionNet(dir / "open.ckpt", FusionNet(old), info, false);
-    FusionNetInfo open_info;
-    LoadFusionNet(dir / "open.ckpt", &open_info);
-    EXPECT_FALSE(open_info.options.keep_warped);
+    const FusionNetOptions open = stored(old, "open.ckpt");
+    EXPECT_FALSE(open.keep_warped);
+    EXPECT_FALSE(open.turn);
+    EXPECT_FALSE(open.gate_by_opacity);
+    FusionNetOptions turned = o;
+    turned.turn = true;
+    turned.gate_by_opacity = true;
+    const FusionNetOptions both = stored(turned, "turn.ckpt");
+    EXPECT_TRUE(both.turn);
+    EXPECT_TRUE(both.gate_by_opacity);
   }
   const FusionNet b = LoadFusionNet(dir / "f16.ckpt");
   const auto p = net->parameters(), pa = a->parameters(), pb = b->parameters();

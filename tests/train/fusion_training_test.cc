@@ -1,8 +1,10 @@
 // The fusion net's training (core/train/fusion_training.h) on tiny fusion sets written here:
-//  - the loss's gradient (L1 + the MobileNetV2 perceptual distance) against central differences;
+//  - the loss's gradient (L1 + the MobileNetV2 perceptual distance + 1 - SSIM) against central
+//    differences;
 //  - a learning test: the net learns to repair a composite whose unwarped region carries a colour
 //    cast, the loss of the last steps below a fraction of the first steps' (a bar derived from the
-//    task), over 1 and 2 threads;
+//    task), over 1 and 2 threads, and with the turn input, the opacity gate and the SSIM term
+//    (fusion-10's setup);
 //  - a resumed run continues the straight run's steps (log once per step, same weights);
 //  - bad fusion set files are refused naming the file.
 
@@ -58,6 +60,7 @@ TEST(FusionTraining, LossGradientMatchesFiniteDifferences) {
   train::FusionLossOptions o;
   o.l1 = 1.0;
   o.perceptual = 0.5;
+  o.ssim = 0.5;
   torch::manual_seed(3);
   const torch::Tensor target = torch::rand({1, 3, 32, 32}, torch::kFloat64) * 2 - 1;
   // Away from target (no kinks of |x| at the evaluation point).
@@ -78,7 +81,12 @@ TEST(FusionTraining, LossGradientMatchesFiniteDifferences) {
 // Bar: the last 10 steps' mean loss below half the first 10 steps' (the cast is most of the
 // starting L1; the ratios measured are in docs and the failure message).
 TEST(FusionTraining, LearnsToRepairTheUnwarpedRegion) {
-  for (const int threads : {1, 2}) {
+  struct Setup {
+    int threads;
+    bool turn;
+  };
+  for (const Setup setup : {Setup{1, false}, Setup{2, false}, Setup{2, true}}) {
+    const int threads = setup.threads;
     torch::set_num_threads(threads);
     testing::TempDir dir;
     WriteTinySet(dir.path() / "set", "train", 16, 32, 7);
@@ -91,6 +99,9 @@ TEST(FusionTraining, LearnsToRepairTheUnwarpedRegion) {
     o.lr = 3e-3;
     o.color_jitter = 0.0;  // the fixed task itself; the augmentation is a property of real runs
     o.loss.perceptual = 0.0;
+    o.loss.ssim = setup.turn ? 0.5 : 0.0;
+    o.turn = setup.turn;
+    o.gate_by_opacity = setup.turn;
     o.widths = {8, 16};
     o.progress = false;
     RunContext ctx;
@@ -110,7 +121,7 @@ TEST(FusionTraining, LearnsToRepairTheUnwarpedRegion) {
       first += losses[k] / 10;
       last += losses[losses.size() - 1 - k] / 10;
     }
-    std::cout << "fusion training, " << threads << " threads: loss " << first << " -> " << last << ", ratio "
+std::cout << "fusion training, " << threads << " threads" << (setup.turn ? ", turn + opacity gate + SSIM" : "") << ": loss " << first << " -> " << last << ", ratio "
               << last / first << "\n";
     EXPECT_LT(last, 0.5 * first) << threads << " threads: first " << first << " last " << last << " ratio "
                                  << last / first;
