@@ -49,6 +49,7 @@ void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(!keep_warped || in_channels >= 8)
       << "keep_warped needs the warp weights in input channels 6 and 7, got " << in_channels << " channels";
   AVATAR_CHECK_OPTION(!turn || keep_warped) << "the fusion net's turn input opens the kept photo: it needs keep_warped";
+  AVATAR_CHECK_OPTION(!turn_keeps_face || turn) << "turn_keeps_face says what the turn opens: it needs turn";
   AVATAR_CHECK_OPTION(!gate_by_opacity || in_channels >= 11)
       << "gate_by_opacity needs the opacity in input channel 10, got " << in_channels << " channels";
 }
@@ -112,9 +113,14 @@ std::pair<torch::Tensor, torch::Tensor> FusionNetImpl::Heads(const torch::Tensor
 torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x, const torch::Tensor& turn_degrees) const {
   torch::Tensor open = torch::ones_like(x.slice(1, 0, 1));
   if (options_.keep_warped) {
-    const torch::Tensor keep = std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
-    open = options_.turn ? 1.0 - keep * (1.0 - FusionTurnFraction(turn_degrees, x.size(0)).to(x.options()))
-                         : 1.0 - keep;
+    if (!options_.turn) {
+      open = 1.0 - std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
+    } else {
+      const torch::Tensor held = 1.0 - FusionTurnFraction(turn_degrees, x.size(0)).to(x.options());
+      const torch::Tensor face = x.slice(1, 6, 7).clamp(0.0, 1.0);
+      const torch::Tensor depth = x.slice(1, 7, 8).clamp(0.0, 1.0);
+      open = options_.turn_keeps_face ? 1.0 - torch::max(face, depth * held) : 1.0 - torch::max(face, depth) * held;
+    }
   }
   if (options_.gate_by_opacity) open = open * x.slice(1, 10, 11).clamp(0.0, 1.0);
   return open;
@@ -164,6 +170,7 @@ void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, cons
                   {"widths", net->options().widths},
                   {"keep_warped", net->options().keep_warped},
                   {"turn", net->options().turn},
+                  {"turn_keeps_face", net->options().turn_keeps_face},
                   {"gate_by_opacity", net->options().gate_by_opacity},
                   {"dtype", half_precision ? "float16" : "float32"}};
   torch::NoGradGuard no_grad;
@@ -185,6 +192,8 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
     options.widths = archive.meta.at("widths").get<std::vector<int64_t>>();
     options.keep_warped = archive.meta.contains("keep_warped") && archive.meta.at("keep_warped").get<bool>();
     options.turn = archive.meta.contains("turn") && archive.meta.at("turn").get<bool>();
+    options.turn_keeps_face =
+        archive.meta.contains("turn_keeps_face") && archive.meta.at("turn_keeps_face").get<bool>();
     options.gate_by_opacity =
         archive.meta.contains("gate_by_opacity") && archive.meta.at("gate_by_opacity").get<bool>();
     options.Validate();

@@ -64,13 +64,20 @@ struct FusionNetOptions {
   // proportion (1 - keep x (1 - min(1, turn / kFusionFullTurnDegrees))); needs keep_warped. The
   // net then needs the turn with every input (forward's turn_degrees). Off in files before fusion-9.
   bool turn = false;
+  // With turn: the face warp's photo stays kept at every turn and only the depth warp's (hair,
+  // ears, neck, clothes) opens: keep = max(face weight, depth weight x (1 - turn fraction)).
+  // fusion-12 opened both and gave up 0.06 identity at +-30 degrees (the net softened the face);
+  // the issue-32 study measured that softening outside the face alone already gains SSIM and
+  // perceptual distance at turned targets. Off in files before fusion-13.
+  bool turn_keeps_face = false;
   // The residual acts only on the frame's opaque pixels, in proportion to the opacity (input
   // channel 10): where the composite is transparent its colour is the empty background, which the
   // net has no business changing (fusion-8 lost 2.3 dB on the photo's own view there and at the
   // outline). Off in files before fusion-10.
   bool gate_by_opacity = false;
   // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels,
-  // keep_warped without the two warp-weight channels).
+  // keep_warped without the two warp-weight channels, turn without keep_warped, turn_keeps_face
+  // without turn).
   void Validate() const;
 };
 
@@ -84,7 +91,8 @@ class FusionNetImpl : public torch::nn::Module {
   // The residual and the blend mask before they are combined: {r [B,3,H,W], m [B,1,H,W] in (0,1)}.
   std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x, const torch::Tensor& turn_degrees = {});
   // Where the residual may act, [B,1,H,W] in [0,1]: 1 - keep (all ones without keep_warped), and
-  // with options().turn 1 - keep x (1 - turn fraction); times the opacity with gate_by_opacity.
+  // with options().turn 1 - keep x (1 - turn fraction) (1 - max(face, depth x (1 - turn fraction))
+  // with turn_keeps_face); times the opacity with gate_by_opacity.
   torch::Tensor OpenTo(const torch::Tensor& x, const torch::Tensor& turn_degrees = {}) const;
   const FusionNetOptions& options() const { return options_; }
   int64_t ParameterCount() const;

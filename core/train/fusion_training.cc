@@ -208,12 +208,17 @@ void FusionTrainOptions::Validate() const {
   AVATAR_CHECK_OPTION(validate_every >= 0 && validate_samples >= 1) << "bad validation schedule";
   AVATAR_CHECK_OPTION(max_bad_steps >= 1) << "max_bad_steps must be >= 1";
   loss.Validate();
+  NetOptions().Validate();
+}
+
+FusionNetOptions FusionTrainOptions::NetOptions() const {
   FusionNetOptions net;
   net.widths = widths;
   net.keep_warped = keep_warped;
   net.turn = turn;
   net.gate_by_opacity = gate_by_opacity;
-  net.Validate();
+  net.turn_keeps_face = turn_keeps_face;
+  return net;
 }
 
 FusionValidation ValidateFusion(FusionNet& net, const FusionSamples& samples, int count,
@@ -263,11 +268,7 @@ FusionTrainResult TrainFusion(const FusionTrainOptions& o, RunContext& ctx) {
   std::error_code ec;
   fs::create_directories(out, ec);
   if (ec) throw Io(o.out_dir + ": cannot create the run folder: " + ec.message());
-  FusionNetOptions net_options;
-  net_options.widths = o.widths;
-  net_options.keep_warped = o.keep_warped;
-  net_options.turn = o.turn;
-  net_options.gate_by_opacity = o.gate_by_opacity;
+  const FusionNetOptions net_options = o.NetOptions();
   torch::manual_seed(o.seed);  // a fresh run's initial weights depend on the seed only
   FusionNet net(net_options);
   torch::optim::Adam adam(net->parameters(), torch::optim::AdamOptions(o.lr).betas({0.9, 0.99}));

@@ -73,6 +73,7 @@ struct FusionTrainOptions {
   bool keep_warped = true;  // FusionNetOptions::keep_warped; --init may start from a net without it
   bool turn = false;        // FusionNetOptions::turn; --init may start from a net without it
   bool gate_by_opacity = false;  // FusionNetOptions::gate_by_opacity
+  bool turn_keeps_face = false;  // FusionNetOptions::turn_keeps_face (with turn)
   bool progress = true;
   std::string data_dir;  // where the MobileNetV2 weights are ("" = default)
 
@@ -94,11 +95,14 @@ struct FusionTrainOptions {
     v("keep_warped", keep_warped, "Keep the photo wherever its warp reached (the residual acts only elsewhere)");
     v("turn", turn, "Give the net the view's turn from the photo and let it act on the warped photo in proportion");
     v("gate_by_opacity", gate_by_opacity, "Let the residual act only on the frame's opaque pixels");
+    v("turn_keeps_face", turn_keeps_face, "With --turn: keep the face warp's photo at every turn (only the depth warp opens)");
     v("seed", seed, "Seed of the crops and batches");
     v("validate_every", validate_every, "Steps between validations");
     v("validate_samples", validate_samples, "Validation frames");
   }
   void Validate() const;
+  // The net these options train (widths and the keep/turn/gate flags).
+  FusionNetOptions NetOptions() const;
 };
 
 // Validation figures of the net against the geometric composite on whole frames.

@@ -135,6 +135,23 @@ TEST(FusionNet, TheTurnOpensTheWarpedPhotoInProportion) {
   EXPECT_TRUE(torch::equal(yg.slice(2, 0, 4), cg.slice(2, 0, 4)));
   EXPECT_TRUE(torch::allclose(yg.slice(2, 4, 8), (cg + 0.5 * (yu - cg)).slice(2, 4, 8), 1e-5, 1e-6));
   EXPECT_TRUE(torch::allclose(yg.slice(2, 8, 16), yu.slice(2, 8, 16), 1e-5, 1e-6));
+  // turn_keeps_face: the face warp's photo stays at every turn, the depth warp's opens with it.
+  FusionNetOptions face_options = o;
+  face_options.turn_keeps_face = true;
+  FusionNet face_kept(face_options);
+  CopyFusionWeights(net, face_kept);
+  torch::Tensor xf = x.clone();
+  xf.slice(1, 7, 8).slice(3, 8, 16).fill_(1.0);  // the depth warp reached columns 8-15
+  const torch::Tensor yf = face_kept->forward(xf, turn), cf = xf.slice(1, 0, 3);
+  const auto [rf, mf] = face_kept->Heads(xf, turn);
+  const torch::Tensor full_f = mf * rf;
+  for (int b = 0; b < 3; ++b) EXPECT_TRUE(torch::equal(yf[b].slice(2, 0, 8), cf[b].slice(2, 0, 8))) << b;
+  EXPECT_TRUE(torch::equal(yf[0].slice(2, 8, 16), cf[0].slice(2, 8, 16)));
+  EXPECT_TRUE(torch::allclose(yf[1].slice(2, 8, 16), (cf + full_f / 3.0)[1].slice(2, 8, 16), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(yf[2].slice(2, 8, 16), (cf + full_f)[2].slice(2, 8, 16), 1e-5, 1e-6));
+  FusionNetOptions face_without_turn = face_options;
+  face_without_turn.turn = false;
+  EXPECT_THROW(face_without_turn.Validate(), InvalidOptions);
   FusionNetOptions few = gated_options;
   few.in_channels = 10;
   few.keep_warped = false;
@@ -283,7 +300,7 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
   EXPECT_TRUE(read.options.keep_warped);
   EXPECT_EQ(read.fingerprint.size(), 16u);
   {
-    // The flags a file stores: an old net without them, a fusion-10 net with both.
+    // The flags a file stores: an old net without them, a fusion-10 net with two, a fusion-13 net with three.
     auto stored = [&](const FusionNetOptions& options, const std::string& name) {
       SaveFusionNet(dir / name, FusionNet(options), info, true);
       FusionNetInfo read_back;
@@ -296,12 +313,16 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
     EXPECT_FALSE(open.keep_warped);
     EXPECT_FALSE(open.turn);
     EXPECT_FALSE(open.gate_by_opacity);
+    EXPECT_FALSE(open.turn_keeps_face);
     FusionNetOptions turned = o;
     turned.turn = true;
     turned.gate_by_opacity = true;
     const FusionNetOptions both = stored(turned, "turn.ckpt");
     EXPECT_TRUE(both.turn);
     EXPECT_TRUE(both.gate_by_opacity);
+    EXPECT_FALSE(both.turn_keeps_face);
+    turned.turn_keeps_face = true;
+    EXPECT_TRUE(stored(turned, "face.ckpt").turn_keeps_face);
   }
   const FusionNet b = LoadFusionNet(dir / "f16.ckpt");
   const auto p = net->parameters(), pa = a->parameters(), pb = b->parameters();
