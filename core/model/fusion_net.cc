@@ -49,7 +49,8 @@ void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(!keep_warped || in_channels >= 8)
       << "keep_warped needs the warp weights in input channels 6 and 7, got " << in_channels << " channels";
   AVATAR_CHECK_OPTION(!turn || keep_warped) << "the fusion net's turn input opens the kept photo: it needs keep_warped";
-  AVATAR_CHECK_OPTION(!turn_keeps_face || turn) << "turn_keeps_face says what the turn opens: it needs turn";
+  AVATAR_CHECK_OPTION(!turn_keeps_face || turn)
+      << "turn_keeps_face (--turn-keeps-face) says what the turn opens: it needs the turn input (--turn)";
   AVATAR_CHECK_OPTION(!gate_by_opacity || in_channels >= 11)
       << "gate_by_opacity needs the opacity in input channel 10, got " << in_channels << " channels";
 }
