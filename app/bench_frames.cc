@@ -54,7 +54,7 @@ constexpr double kExpressionGoalMs = 100.0;
 struct BenchFramesOptions {
   // Model checkpoint ("" = the installed or bundled model).
   std::string checkpoint;
-  // Fusion net weights: adds the learned path's row ("" = none).
+  // Fusion net weights of the learned path's row ("" = the bundled net, FusionWeightsOf).
   std::string fusion;
   // Portrait photo ("" = the bundled sample portrait, samples/grace_hopper.jpg in the data folder).
   std::string portrait;
@@ -74,7 +74,7 @@ struct BenchFramesOptions {
   template <typename V>
   void Visit(V&& v) {
     v("checkpoint", checkpoint, "Model checkpoint (default: the installed or bundled model)");
-    v("fusion", fusion, "Fusion net weights: adds the learned path's row");
+    v("fusion", fusion, "Fusion net weights of the learned path's row (default: the bundled net)");
     v("portrait", portrait, "Portrait photo (default: the bundled sample portrait)");
     v("frames", frames, "Orbit frames per configuration and pass");
     v("repeats", repeats, "Orbit passes (median over all frames)");
@@ -235,8 +235,8 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
   std::vector<std::pair<std::string, const FrameSource*>> sources = {
       {"network alone (--detail off)", paths.network.get()},
       {"detail on the face (--detail face)", paths.face.get()},
-      {"detail on the head (--detail head, default)", paths.detail.get()}};
-  if (paths.learned) sources.push_back({"head detail + fusion net (--fusion)", paths.learned.get()});
+      {"detail on the head, geometric composite (--detail geometric)", paths.detail.get()}};
+  if (paths.learned) sources.push_back({"detail on the head + fusion net (--detail head, default)", paths.learned.get()});
   std::cout << "\nDetail path (frame sources as the studio and animate use them; the bake = the head detail's "
                "source-view depth and face depth, once per avatar: "
             << Fixed(paths.bake_seconds, 3) << " s):\n\n"
@@ -270,8 +270,10 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
   // expression is first composed over the last network frame (RenderQuick: no network call),
   // then the full frame follows. Each step a new jawOpen value (never cached).
   constexpr double kFirstGoalMs = 100.0, kRefinedGoalMs = 400.0;
-  std::cout << "\nExpression changes in the studio with the head detail (first frame = the quick frame; refined = "
-               "quick + full frame, as the viewport shows them; "
+  // The studio's default: the head detail finished by the fusion net when one is installed.
+  const auto& studio = paths.learned ? paths.learned : paths.detail;
+  std::cout << "\nExpression changes in the studio with the head detail" << (paths.learned ? " + fusion net" : "")
+            << " (first frame = the quick frame; refined = quick + full frame, as the viewport shows them; "
             << options.expressions << " new expressions per size, sweeping jawOpen, smile and blinkLeft in turn):\n\n"
             << "| output | first updated frame (median ms) | vs 100 ms goal | refined frame (median ms) | vs 400 ms goal "
                "| full frame alone (median ms) |\n"
@@ -288,7 +290,7 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
     request.view = paths.network->SourcePose();
     request.view.yaw += 10.0;
     request.width = request.height = size;
-    paths.detail->Render(request, quiet);  // the view's network frame, kept
+    studio->Render(request, quiet);  // the view's network frame, kept
     std::vector<double> first, refined, full;
     for (int e = 0; e < options.expressions; ++e) {
       ctx.ThrowIfCancelled();
@@ -296,11 +298,11 @@ int RunBenchFramesImpl(const BenchFramesOptions& options, RunContext& ctx) {
       request.expression.controls[sliders[static_cast<size_t>(step) % sliders.size()]] =
           0.05f + 0.9f * static_cast<float>(step) / (2.0f * options.expressions);
       Timer timer;
-      const std::optional<RenderedFrame> quick = paths.detail->RenderQuick(request, quiet);
+      const std::optional<RenderedFrame> quick = studio->RenderQuick(request, quiet);
       AVATAR_CHECK_INPUT(quick.has_value()) << "the detail path kept no frame of this view";
       first.push_back(timer.Milliseconds());
       Timer full_timer;
-      paths.detail->Render(request, quiet);
+      studio->Render(request, quiet);
       full.push_back(full_timer.Milliseconds());
       refined.push_back(timer.Milliseconds());
     }

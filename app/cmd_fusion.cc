@@ -3,6 +3,7 @@
 //   fusion train --data SET --out RUN       trains the fusion net on them (resumable; Ctrl+C or
 //                                           SIGTERM writes the state and the weights)
 //   fusion eval --data SET [--weights W]    per-yaw-bucket table of every path against the targets
+//   fusion export --weights W --out FILE    the weights as shipped (float16, inference settings)
 
 #include <csignal>
 #include <iomanip>
@@ -113,9 +114,45 @@ int FusionEval(const std::vector<std::string>& args) {
   return kExitOk;
 }
 
+struct FusionExportCommandOptions {
+  std::string weights, out;
+  FusionExportOptions exported;
+  bool float32 = false;
+  template <typename V>
+  void Visit(V&& v) {
+    v("weights", weights, "Fusion weights to export (a run's fusion.ckpt)");
+    v("out", out, "The file to write");
+    v("turn_open", exported.turn_open,
+      "The share (0..1) of the view's turn that opens the warped photo to the net (negative = as stored)");
+    v("keep_eye_mouth", exported.keep_eye_mouth,
+      "Keep the composite on the target's eyes and mouth (the opened mouth's painted interior)");
+    v("float32", float32, "Write float32 weights (default: float16, the shipped form)");
+  }
+};
+
+int FusionExport(const std::vector<std::string>& args) {
+  FusionWithCommon<FusionExportCommandOptions> o;
+  std::vector<std::string> positionals;
+  if (!ParseCommand(o, args, "avatar-studio fusion export --weights FUSION.ckpt --out FILE.ckpt [--turn-open S] [--keep-eye-mouth]",
+                    "Writes trained fusion weights in the form that ships (float16), with their inference\n"
+                    "settings changed where asked; the weights themselves stay as trained.",
+                    &positionals)) {
+    return kExitOk;
+  }
+  AVATAR_CHECK_OPTION(positionals.empty()) << "fusion export takes no positional arguments";
+  AVATAR_CHECK_OPTION(!o.options.weights.empty() && !o.options.out.empty())
+      << "fusion export needs --weights FUSION.ckpt and --out FILE.ckpt";
+  o.options.exported.half_precision = !o.options.float32;
+  const FusionNetInfo info = ExportFusionNet(o.options.weights, o.options.out, o.options.exported);
+  std::cout << "fusion weights " << o.options.out << ": step " << info.step << ", fusion:" << info.fingerprint
+            << ", turn_open " << info.options.turn_open << (info.options.keep_eye_mouth ? ", eyes and mouth kept" : "")
+            << (o.options.float32 ? ", float32" : ", float16") << "\n";
+  return kExitOk;
+}
+
 int RunFusion(const std::vector<std::string>& args) {
   return GuardedRun("fusion", [&] {
-    const std::string usage = "Usage: avatar-studio fusion build|train|eval [options] (--help on each)\n";
+    const std::string usage = "Usage: avatar-studio fusion build|train|eval|export [options] (--help on each)\n";
     if (args.empty() || args[0] == "--help" || args[0] == "-h") {
       std::cout << usage;
       return args.empty() ? kExitUsage : kExitOk;
@@ -124,12 +161,13 @@ int RunFusion(const std::vector<std::string>& args) {
     if (args[0] == "build") return FusionBuild(rest);
     if (args[0] == "train") return FusionTrain(rest);
     if (args[0] == "eval") return FusionEval(rest);
-    throw InvalidOptions("unknown fusion subcommand '" + args[0] + "': use build, train or eval");
+    if (args[0] == "export") return FusionExport(rest);
+    throw InvalidOptions("unknown fusion subcommand '" + args[0] + "': use build, train, eval or export");
   });
 }
 
 }  // namespace
 
-AVATAR_REGISTER_COMMAND("fusion", "build, train and evaluate the fusion net that finishes detail frames", RunFusion);
+AVATAR_REGISTER_COMMAND("fusion", "build, train, evaluate and export the fusion net that finishes detail frames", RunFusion);
 
 }  // namespace avatar::app

@@ -53,7 +53,10 @@ int RunLiveImpl(LiveCommandOptions options, RunContext& ctx) {
   options.backend.data_dir = options.common.data_dir;
   // The camera first: no camera is the most likely mistake, and it costs nothing to find out.
   CameraGrabber camera(options.live.camera);
-  const std::shared_ptr<const FrameSource> source = OpenAvatarSource(options.input, options.backend, ctx);
+  // The geometric composite unless --fusion names a net (LiveFrameSource).
+  const std::shared_ptr<const FrameSource> source =
+      LiveFrameSource(OpenAvatarSource(options.input, options.backend, ctx), options.backend.network_expression_every,
+                      /*keep_fusion=*/!options.backend.fusion.empty());
   for (const std::string& w : source->Warnings()) std::cerr << "warning: " << w << "\n";
   std::unique_ptr<FrameAnalyzer> analyzer = DrivingAnalyzers(options.backend)(ctx);
   AVATAR_CHECK_INPUT(analyzer != nullptr) << "this build cannot analyse camera frames (no face analysis)";
@@ -138,7 +141,8 @@ int RunLive(const std::vector<std::string>& args) {
     if (!ParseCommand(options, args, "avatar-studio live PORTRAIT|FILE.avatar [--camera N|/dev/videoN|VIDEO] [-o out.mp4]",
                       "Drives an avatar live from a camera: head pose and expression follow the face in front of "
                       "it (relative to the first frame with a face). A video file plays as a camera at its own "
-                      "frame rate. Frames the avatar cannot keep up with are dropped, never queued.",
+                      "frame rate. Frames the avatar cannot keep up with are dropped, never queued. With the "
+                      "head detail, live frames are the geometric composite unless --fusion names a fusion net.",
                       &positionals)) {
       return kExitOk;
     }

@@ -66,7 +66,7 @@ struct RenderCommandOptions {
   bool alpha = false;
   // Also write the depth map as a 16-bit PNG next to the output (<name>_depth.png).
   bool depth = false;
-  // The photo's detail over the network render (head, face or off; BackendOptions::detail) and
+  // The photo's detail over the network render (head, geometric, face or off; BackendOptions::detail) and
   // the fusion net that finishes it. Needs an avatar that keeps its portrait's analysis.
   std::string detail = "head";
   std::string fusion;
@@ -88,9 +88,10 @@ struct RenderCommandOptions {
     v("alpha", alpha, "Write RGBA with the rendered opacity as alpha");
     v("depth", depth, "Also write <output>_depth.png (16-bit, near 2.25 = 0, far 3.3 = 65535)");
     v("detail", detail,
-      "The photo's detail over the network render: head, face or off (avatars saved since 2026-12-05 keep what it "
-      "needs)");
-    v("fusion", fusion, "Fusion net weights that finish the detail frame (\"\" = the geometric composite)");
+      "The photo's detail over the network render: head (finished by the learned fusion net), geometric (the same "
+      "without the net), face or off (avatars saved since 2026-12-05 keep what it needs)");
+    v("fusion", fusion,
+      "Fusion net weights that finish the detail frame (\"\" = the bundled net with --detail head, none otherwise)");
     v("size", size, "Output side with the detail path, in pixels");
     session.Visit(v);
     common.Visit(v);

@@ -11,6 +11,7 @@
 
 #include "app/cli_util.h"
 #include "core/pipeline/session.h"
+#include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
 #include "core/util/logging.h"
 #include "core/util/threads.h"
@@ -152,6 +153,11 @@ void PrintVersion() {
   } catch (const Error& e) {
     std::cout << "default model: none (" << e.what() << ")\n";
   }
+  // Which fusion net finishes the detail frames by default (--detail head).
+  std::string note;
+  const std::string fusion = FusionWeightsOf(BackendOptions{}, &note);
+  std::cout << "detail finish: " << (fusion.empty() ? "the geometric composite (" + note + ")" : fusion + " (bundled)")
+            << "\n";
 }
 
 // Runs a command line for which IsCommandLine is true.

@@ -815,12 +815,10 @@ bool MainWindow::startLive(const QString& camera) {
   o.driving = driving_panel_->options();
   o.follow_pose = driving_panel_->followPose();
   try {
-    // As `live` does: the network takes a new expression on every 4th frame, the photo's face
-    // follows every frame (the sliders' and exports' source keeps every expression).
-    std::shared_ptr<const FrameSource> driven = source_;
-    if (const auto* detail = dynamic_cast<const DetailFrameSource*>(source_.get()))
-      driven = detail->WithBaseExpressionEvery(kLiveNetworkExpressionEvery);
-    live_->start(driven, DrivingAnalyzers(backendOptions()), o.camera, o);
+    // As `live` does (LiveFrameSource): the network takes a new expression on every 4th frame,
+    // the photo's face follows every frame, no fusion net (the sliders' and exports' source
+    // keeps every expression and the net).
+    live_->start(LiveFrameSource(source_), DrivingAnalyzers(backendOptions()), o.camera, o);
   } catch (const std::exception& e) {
     showError(tr("Live"), QString::fromUtf8(e.what()));
     return false;

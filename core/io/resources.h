@@ -19,6 +19,9 @@ namespace avatar {
 
 // The bundled neural model (float16 weights), relative to the resource folder.
 inline constexpr const char* kBundledModelFile = "models/goha-default.ckpt";
+// The bundled fusion net that finishes the detail path's frames of the bundled model (float16;
+// core/model/fusion_net.h, docs/MODEL.md).
+inline constexpr const char* kBundledFusionFile = "models/fusion-default.ckpt";
 
 // See the header comment.
 std::filesystem::path ResourcePath(const std::string& relative);

@@ -51,6 +51,12 @@ void FusionNetOptions::Validate() const {
   AVATAR_CHECK_OPTION(!turn || keep_warped) << "the fusion net's turn input opens the kept photo: it needs keep_warped";
   AVATAR_CHECK_OPTION(!turn_keeps_face || turn)
       << "turn_keeps_face (--turn-keeps-face) says what the turn opens: it needs the turn input (--turn)";
+  AVATAR_CHECK_OPTION(std::isfinite(turn_open) && turn_open >= 0.0 && turn_open <= 1.0)
+      << "turn_open (--turn-open) is a share of the turn's opening: it must be within 0..1, got " << turn_open;
+  AVATAR_CHECK_OPTION(turn_open == 1.0 || turn)
+      << "turn_open (--turn-open) scales what the turn opens: it needs the turn input (--turn)";
+  AVATAR_CHECK_OPTION(!keep_eye_mouth || in_channels >= 10)
+      << "keep_eye_mouth needs the eye/mouth region in input channel 9, got " << in_channels << " channels";
   AVATAR_CHECK_OPTION(!gate_by_opacity || in_channels >= 11)
       << "gate_by_opacity needs the opacity in input channel 10, got " << in_channels << " channels";
 }
@@ -117,13 +123,15 @@ torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x, const torch::Tensor&
     if (!options_.turn) {
       open = 1.0 - std::get<0>(x.slice(1, 6, 8).max(1, /*keepdim=*/true)).clamp(0.0, 1.0);
     } else {
-      const torch::Tensor held = 1.0 - FusionTurnFraction(turn_degrees, x.size(0)).to(x.options());
+      const torch::Tensor held =
+          1.0 - options_.turn_open * FusionTurnFraction(turn_degrees, x.size(0)).to(x.options());
       const torch::Tensor face = x.slice(1, 6, 7).clamp(0.0, 1.0);
       const torch::Tensor depth = x.slice(1, 7, 8).clamp(0.0, 1.0);
       open = options_.turn_keeps_face ? 1.0 - torch::max(face, depth * held) : 1.0 - torch::max(face, depth) * held;
     }
   }
   if (options_.gate_by_opacity) open = open * x.slice(1, 10, 11).clamp(0.0, 1.0);
+  if (options_.keep_eye_mouth) open = open * (1.0 - x.slice(1, 9, 10).clamp(0.0, 1.0));
   return open;
 }
 
@@ -172,6 +180,8 @@ void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, cons
                   {"keep_warped", net->options().keep_warped},
                   {"turn", net->options().turn},
                   {"turn_keeps_face", net->options().turn_keeps_face},
+                  {"turn_open", net->options().turn_open},
+                  {"keep_eye_mouth", net->options().keep_eye_mouth},
                   {"gate_by_opacity", net->options().gate_by_opacity},
                   {"dtype", half_precision ? "float16" : "float32"}};
   torch::NoGradGuard no_grad;
@@ -195,6 +205,8 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
     options.turn = archive.meta.contains("turn") && archive.meta.at("turn").get<bool>();
     options.turn_keeps_face =
         archive.meta.contains("turn_keeps_face") && archive.meta.at("turn_keeps_face").get<bool>();
+    options.turn_open = archive.meta.contains("turn_open") ? archive.meta.at("turn_open").get<double>() : 1.0;
+    options.keep_eye_mouth = archive.meta.contains("keep_eye_mouth") && archive.meta.at("keep_eye_mouth").get<bool>();
     options.gate_by_opacity =
         archive.meta.contains("gate_by_opacity") && archive.meta.at("gate_by_opacity").get<bool>();
     options.Validate();
@@ -218,6 +230,32 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
   }
   net->eval();
   return net;
+}
+
+void FusionExportOptions::Validate() const {
+  AVATAR_CHECK_OPTION(std::isfinite(turn_open) && turn_open <= 1.0)
+      << "--turn-open must be within 0..1 (or negative to keep the stored value), got " << turn_open;
+}
+
+FusionNetInfo ExportFusionNet(const std::filesystem::path& from, const std::filesystem::path& to,
+                              const FusionExportOptions& options) {
+  options.Validate();
+  FusionNetInfo info;
+  const FusionNet stored = LoadFusionNet(from, &info);
+  FusionNetOptions net_options = info.options;
+  if (options.turn_open >= 0.0) net_options.turn_open = options.turn_open;
+  if (options.keep_eye_mouth) net_options.keep_eye_mouth = true;
+  try {
+    net_options.Validate();
+  } catch (const InvalidOptions& e) {
+    throw InvalidOptions(from.string() + ": " + e.what());
+  }
+  FusionNet exported(net_options);
+  CopyFusionWeights(stored, exported);
+  SaveFusionNet(to, exported, info, options.half_precision);
+  FusionNetInfo written;
+  LoadFusionNet(to, &written);
+  return written;
 }
 
 }  // namespace avatar

@@ -37,6 +37,10 @@ namespace avatar {
 
 inline constexpr int64_t kFusionInputChannels = 11;
 
+// The frame side the fusion nets are trained at (fusion sets are built at 256 px): a detail
+// source runs its net on larger frames scaled down to it and adds the net's change scaled up.
+inline constexpr int64_t kFusionNetSide = 256;
+
 // The turn at which the residual may act on the warped photo in full (degrees).
 inline constexpr double kFusionFullTurnDegrees = 45.0;
 // The angle between a view and the photo's, from their yaw and pitch differences (degrees).
@@ -70,6 +74,19 @@ struct FusionNetOptions {
   // the issue-32 study measured that softening outside the face alone already gains SSIM and
   // perceptual distance at turned targets. Off in files before fusion-13.
   bool turn_keeps_face = false;
+  // With turn: the share of the turn's opening that the warped photo gets, in [0,1]: the turn
+  // fraction is multiplied by it before it opens the photo (keep x (1 - turn_open x fraction)).
+  // fusion-13 trained with 1 and, at inference, softened the hair and the head's outline enough at
+  // +-15..30 degrees to lower the orbit identity; at 1/16 it still beats the composite on every
+  // validation bucket with the identity not lower (docs/PERFORMANCE.md "The detail path against
+  // real targets"). An inference setting that `fusion export` may change; 1 in older files.
+  double turn_open = 1.0;
+  // The residual does not act on the target's eye and mouth region (input channel 9, in
+  // proportion): there the composite stays, with the opened mouth's interior painted dark in the
+  // lips' colour. fusion-13 painted that interior a flat grey (the clips' average of teeth and
+  // dark), which lowered the orbit's mouth-opening measure (0.081 against the composite's 0.089).
+  // An inference setting that `fusion export --keep-eye-mouth` turns on; off in older files.
+  bool keep_eye_mouth = false;
   // The residual acts only on the frame's opaque pixels, in proportion to the opacity (input
   // channel 10): where the composite is transparent its colour is the empty background, which the
   // net has no business changing (fusion-8 lost 2.3 dB on the photo's own view there and at the
@@ -77,7 +94,8 @@ struct FusionNetOptions {
   bool gate_by_opacity = false;
   // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels,
   // keep_warped without the two warp-weight channels, turn without keep_warped, turn_keeps_face
-  // without turn).
+  // without turn, turn_open outside [0,1] or other than 1 without turn, keep_eye_mouth without
+  // input channel 9).
   void Validate() const;
 };
 
@@ -91,8 +109,9 @@ class FusionNetImpl : public torch::nn::Module {
   // The residual and the blend mask before they are combined: {r [B,3,H,W], m [B,1,H,W] in (0,1)}.
   std::pair<torch::Tensor, torch::Tensor> Heads(const torch::Tensor& x, const torch::Tensor& turn_degrees = {});
   // Where the residual may act, [B,1,H,W] in [0,1]: 1 - keep (all ones without keep_warped), and
-  // with options().turn 1 - keep x (1 - turn fraction) (1 - max(face, depth x (1 - turn fraction))
-  // with turn_keeps_face); times the opacity with gate_by_opacity.
+  // with options().turn 1 - keep x (1 - s) (1 - max(face, depth x (1 - s)) with turn_keeps_face),
+  // s = turn_open x turn fraction; times the opacity with gate_by_opacity, and times 1 - the
+  // eye/mouth region with keep_eye_mouth.
   torch::Tensor OpenTo(const torch::Tensor& x, const torch::Tensor& turn_degrees = {}) const;
   const FusionNetOptions& options() const { return options_; }
   int64_t ParameterCount() const;
@@ -132,5 +151,21 @@ void CopyFusionWeights(const FusionNet& from, FusionNet& to);
 // Reads a file of SaveFusionNet into a float32 net. Throws Io (missing), ModelLoad (malformed,
 // another kind, tensors that do not fit the stored widths).
 FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info = nullptr);
+
+// What `fusion export` changes when it writes a trained net for shipping: the inference settings
+// only (the weights stay as trained).
+struct FusionExportOptions {
+  double turn_open = -1.0;     // FusionNetOptions::turn_open (< 0 = as stored)
+  bool keep_eye_mouth = false;  // turn FusionNetOptions::keep_eye_mouth on (false = as stored)
+  bool half_precision = true;  // float16 weights (the shipped form)
+  // Throws InvalidOptions for a turn_open above 1 or not finite.
+  void Validate() const;
+};
+// Reads `from` (LoadFusionNet), applies `options` and writes the net to `to` atomically, keeping
+// its step and provenance. Returns what the written file says about itself. Throws like
+// LoadFusionNet and SaveFusionNet, InvalidOptions (a setting the stored net cannot take, e.g.
+// turn_open without the turn input).
+FusionNetInfo ExportFusionNet(const std::filesystem::path& from, const std::filesystem::path& to,
+                              const FusionExportOptions& options);
 
 }  // namespace avatar

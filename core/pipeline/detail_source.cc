@@ -34,22 +34,38 @@ struct DetailFrameSource::Fusion {
 
   // The finished frame of a geometric composite's layers (BGR8 of the frame's size), at a view
   // turned `turn_degrees` from the photo's (FusionTurnDegrees).
+  // Frames larger than kFusionNetSide on their longer side: the net runs on the layers scaled
+  // down to it (the scale it was trained at) and its change to the composite, scaled up, is added
+  // to the full-size composite, so the photo's own detail stays at full resolution.
   cv::Mat Finish(const DetailLayers& layers, double turn_degrees) {
+    namespace F = torch::nn::functional;
     torch::NoGradGuard no_grad;
-    torch::Tensor x = FusionInputFromBytes(FusionInputBytes(layers).unsqueeze(0));
-    const int64_t h = x.size(2), w = x.size(3);
-    const int64_t factor = int64_t{1} << (static_cast<int64_t>(info.options.widths.size()) - 1);
-    const int64_t ph = (factor - h % factor) % factor, pw = (factor - w % factor) % factor;
-    if (ph > 0 || pw > 0) {
-      x = torch::nn::functional::pad(
-          x, torch::nn::functional::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate));
+    const torch::Tensor full = FusionInputFromBytes(FusionInputBytes(layers).unsqueeze(0));
+    const int64_t h = full.size(2), w = full.size(3);
+    torch::Tensor x = full;
+    const double scale = static_cast<double>(kFusionNetSide) / static_cast<double>(std::max(h, w));
+    if (scale < 1.0) {
+      const int64_t sh = std::max<int64_t>(1, std::llround(h * scale)), sw = std::max<int64_t>(1, std::llround(w * scale));
+      x = F::interpolate(full, F::InterpolateFuncOptions().size(std::vector<int64_t>{sh, sw}).mode(torch::kArea));
     }
+    const int64_t xh = x.size(2), xw = x.size(3);
+    const int64_t factor = int64_t{1} << (static_cast<int64_t>(info.options.widths.size()) - 1);
+    const int64_t ph = (factor - xh % factor) % factor, pw = (factor - xw % factor) % factor;
+    if (ph > 0 || pw > 0) x = F::pad(x, F::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate));
     torch::Tensor y;
     {
       std::lock_guard<std::mutex> lock(mutex);
       y = net->forward(x, torch::tensor({turn_degrees}, torch::kFloat32));
     }
-    return BgrFromRgb(y[0].slice(1, 0, h).slice(2, 0, w).clamp(-1.0, 1.0));
+    y = y.slice(2, 0, xh).slice(3, 0, xw);
+    if (scale < 1.0) {
+      const torch::Tensor change = y - x.slice(1, 0, 3).slice(2, 0, xh).slice(3, 0, xw);
+      y = full.slice(1, 0, 3) + F::interpolate(change, F::InterpolateFuncOptions()
+                                                           .size(std::vector<int64_t>{h, w})
+                                                           .mode(torch::kBilinear)
+                                                           .align_corners(false));
+    }
+    return BgrFromRgb(y[0].clamp(-1.0, 1.0));
   }
 };
 
@@ -167,9 +183,10 @@ std::shared_ptr<const HeadMesh> DetailFrameSource::ViewportMesh(RunContext& ctx)
   return std::make_shared<const HeadMesh>(std::move(mesh));
 }
 
-std::shared_ptr<const DetailFrameSource> DetailFrameSource::WithBaseExpressionEvery(int every) const {
+std::shared_ptr<const DetailFrameSource> DetailFrameSource::ForLive(int every, bool keep_fusion) const {
   DetailOptions options = options_;
   options.base_expression_every = every;
+  if (!keep_fusion) options.fusion.clear();
   return std::make_shared<const DetailFrameSource>(base_, *analysis_, options);
 }
 

@@ -49,7 +49,8 @@ struct DetailOptions {
   // (compose::FaceOffsetField; <= 0: the whole head moves).
   double align_depth_reach = 0.1;
   // Weights of the fusion net that finishes each frame (core/model/fusion_net.h; "" = the
-  // geometric composite is the frame).
+  // geometric composite is the frame). Frames above kFusionNetSide px get the net's change at
+  // that side, scaled up onto the full-size composite.
   std::string fusion;
   // The base source (the network) is asked for a new expression on every Nth frame at most; in
   // between it renders the new view at the last expression it was given (the network keeps that
@@ -121,10 +122,13 @@ class DetailFrameSource : public FrameSource {
     std::vector<cv::Point3f> face;
   };
   MeshView ViewportView(const FrameRequest& request) const;
-  // The same detail path over the same base with the network taking a new expression on every
-  // `every`th frame (DetailOptions::base_expression_every; the studio's Live source). Renders the
-  // source view's depth again (one base render). Throws InvalidOptions.
-  std::shared_ptr<const DetailFrameSource> WithBaseExpressionEvery(int every) const;
+  // Live driving's form of this source (LiveFrameSource, live.h): the same detail path over the
+  // same base with the network taking a new expression on every `every`th frame
+  // (DetailOptions::base_expression_every) and, unless `keep_fusion`, without the fusion net:
+  // live frames are the geometric composite by default, since the net's ~30 ms per 256 px frame
+  // on 2 cores would take live under its 15 fps (docs/PERFORMANCE.md). Renders the source view's
+  // depth again (one base render). Throws InvalidOptions.
+  std::shared_ptr<const DetailFrameSource> ForLive(int every, bool keep_fusion = false) const;
   // The detail source `source` is or wraps (through FrameSource::Wrapped), or null.
   static const DetailFrameSource* Find(const FrameSource* source);
   const FrameSource& base() const { return *base_; }

@@ -10,6 +10,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "core/io/video_io.h"
+#include "core/pipeline/detail_source.h"
 #include "core/util/error.h"
 
 namespace avatar {
@@ -266,6 +267,14 @@ LiveStats RunLive(const FrameSource& source, FrameAnalyzer& analyzer, LiveCamera
     stats.latency_p95_ms = sorted[std::min(sorted.size() - 1, static_cast<size_t>(std::ceil(0.95 * sorted.size())) - 1)];
   }
   return stats;
+}
+
+std::shared_ptr<const FrameSource> LiveFrameSource(std::shared_ptr<const FrameSource> source,
+                                                   int network_expression_every, bool keep_fusion) {
+  AVATAR_CHECK_INPUT(source != nullptr) << "live driving needs a frame source";
+  if (const auto* detail = dynamic_cast<const DetailFrameSource*>(source.get()))
+    return detail->ForLive(network_expression_every, keep_fusion);
+  return source;
 }
 
 }  // namespace avatar

@@ -105,6 +105,15 @@ class CameraGrabber : public LiveCamera {
 // studio's Live source.
 inline constexpr int kLiveNetworkExpressionEvery = 4;
 
+// The frame source live driving renders for `source` (the studio's and `live`'s one choice): a
+// detail source becomes its ForLive(network_expression_every, keep_fusion) form (the network
+// takes a new expression on every Nth frame; the geometric composite unless keep_fusion, which
+// `live --fusion WEIGHTS` asks for); other sources are driven as they are. Throws
+// InvalidOptions (N outside 1..100), InvalidInput (no source).
+std::shared_ptr<const FrameSource> LiveFrameSource(std::shared_ptr<const FrameSource> source,
+                                                   int network_expression_every = kLiveNetworkExpressionEvery,
+                                                   bool keep_fusion = false);
+
 struct LiveOptions {
   // Camera: device index, /dev/videoN or a video file (CameraGrabber).
   std::string camera = "0";

@@ -13,6 +13,7 @@
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
+#include "core/io/resources.h"
 #include "core/morphable/morphable.h"
 #include "core/pipeline/avatar_file_info.h"
 #include "core/pipeline/avatar_state.h"
@@ -76,7 +77,7 @@ std::shared_ptr<const FrameSource> MorphablePreview(const SourceAnalysis& analys
 // The detail path's options of `mode` as the backend options say (without the fusion net).
 DetailOptions DetailOptionsOf(const BackendOptions& options, const std::string& mode) {
   DetailOptions detail;
-  detail.mode = mode;
+  detail.mode = mode == "geometric" ? "head" : mode;
   detail.base_expression_every = options.network_expression_every;
   detail.align_depth_to_face = options.align_depth >= 0.0;
   detail.align_depth_reach = std::max(0.0, options.align_depth);
@@ -88,8 +89,15 @@ std::shared_ptr<const FrameSource> WithPhotoDetail(std::shared_ptr<const FrameSo
                                                    const SourceAnalysis& analysis, const BackendOptions& options) {
   if (options.detail == "off") return network;
   DetailOptions detail = DetailOptionsOf(options, options.detail);
-  detail.fusion = options.fusion;
-  return std::make_shared<DetailFrameSource>(std::move(network), analysis, detail);
+  std::string note;
+  detail.fusion = FusionWeightsOf(options, &note);
+  auto source = std::make_shared<DetailFrameSource>(std::move(network), analysis, detail);
+  if (!note.empty()) {
+    std::vector<std::string> warnings = source->Warnings();
+    warnings.push_back(note);
+    source->SetWarnings(std::move(warnings));
+  }
+  return source;
 }
 
 std::shared_ptr<const FrameSource> NeuralAvatar(SourceAnalysis analysis, const BackendOptions& options,
@@ -129,15 +137,32 @@ std::shared_ptr<const Session> SharedSession(const BackendOptions& options) {
   return slot;
 }
 
+std::string FusionWeightsOf(const BackendOptions& options, std::string* note) {
+  if (!options.fusion.empty()) return options.fusion;
+  if (options.detail != "head" || options.random_weights || options.renderer != "neural") return {};
+  const std::filesystem::path bundled = ResourcePath(kBundledFusionFile);
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(bundled, ec)) return bundled.string();
+  if (note != nullptr) {
+    std::string looked;
+    for (const auto& p : ResourceCandidates(kBundledFusionFile)) looked += (looked.empty() ? "" : ", ") + p.string();
+    *note = "The learned finish (the bundled fusion net) is not installed (looked in " + looked +
+            "): the frames are the geometric composite, as with --detail geometric; reinstall the package to get it.";
+  }
+  return {};
+}
+
 void BackendOptions::Validate() const {
   AVATAR_CHECK_OPTION(renderer == "neural" || renderer == "morphable")
       << "--renderer must be neural or morphable, got '" << renderer << "'";
   AVATAR_CHECK_OPTION(config == "lite" || config == "paper")
       << "--config must be lite or paper, got '" << config << "'";
   if (!quality.empty()) QualityLevelByName(quality);
-  ValidateDetailMode(detail);
-  AVATAR_CHECK_OPTION(fusion.empty() || detail != "off")
-      << "--fusion finishes the detail path's frames: it needs --detail head or face, not off";
+  AVATAR_CHECK_OPTION(detail == "head" || detail == "geometric" || detail == "face" || detail == "off")
+      << "--detail must be head, geometric, face or off, got '" << detail << "'";
+  AVATAR_CHECK_OPTION(fusion.empty() || (detail != "off" && detail != "geometric"))
+      << "--fusion finishes the detail path's frames with a learned net: it needs --detail head or face, not "
+      << detail;
   AVATAR_CHECK_OPTION(network_expression_every >= 1 && network_expression_every <= 100)
       << "--network-expression-every must be within 1..100, got " << network_expression_every;
   AVATAR_CHECK_OPTION(std::isfinite(align_depth) && align_depth <= 10.0)
@@ -212,11 +237,9 @@ PortraitPaths CreatePortraitPaths(SourceAnalysis analysis, const BackendOptions&
   const auto bake_start = std::chrono::steady_clock::now();
   paths.detail = std::make_shared<DetailFrameSource>(paths.network, kept, head);
   paths.bake_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - bake_start).count();
-  if (!options.fusion.empty()) {
-    DetailOptions learned = head;
-    learned.fusion = options.fusion;
-    paths.learned = std::make_shared<DetailFrameSource>(paths.network, kept, learned);
-  }
+  DetailOptions learned = head;
+  learned.fusion = FusionWeightsOf(options);
+  if (!learned.fusion.empty()) paths.learned = std::make_shared<DetailFrameSource>(paths.network, kept, learned);
   return paths;
 }
 

@@ -40,9 +40,12 @@ struct BackendOptions {
   std::string quality;
   // The photo's own detail over the neural head (detail_source.h): "head" (the photo warped
   // onto the face through the face mesh and onto hair, ears and neck through the network's
-  // depth, where it saw the surface), "face" (the face only) or "off" (the network alone).
+  // depth, where it saw the surface, finished by the fusion net: FusionWeightsOf), "geometric"
+  // (the same without the fusion net: the geometric composite), "face" (the face only) or "off"
+  // (the network alone).
   std::string detail = "head";
-  // Weights of the fusion net that finishes each detail frame ("" = the geometric composite).
+  // Weights of the fusion net that finishes each detail frame ("" = with --detail head the
+  // bundled one, FusionWeightsOf; otherwise none).
   std::string fusion;
   // With the detail path: the network encodes a new expression on every Nth frame at most, the
   // photo's face follows every frame (DetailOptions::base_expression_every; live's default 3).
@@ -62,9 +65,10 @@ struct BackendOptions {
       "Render with the untrained network's random weights (plumbing check; not a result)");
     v("quality", quality, "Quality level: instant, preview, standard, fine, best or paper (\"\" = standard frames, SR when trained)");
     v("detail", detail,
-      "The photo's detail over the neural head: head (warped onto face, hair, ears and neck where the photo saw them), "
-      "face (the face only) or off");
-    v("fusion", fusion, "Fusion net weights that finish each detail frame (\"\" = the geometric composite)");
+      "The photo's detail over the neural head: head (warped onto face, hair, ears and neck where the photo saw them, "
+      "finished by the learned fusion net), geometric (the same without the net), face (the face only) or off");
+    v("fusion", fusion,
+      "Fusion net weights that finish each detail frame (\"\" = the bundled net with --detail head, none otherwise)");
     v("network_expression_every", network_expression_every,
       "With the detail path, the network takes a new expression on every Nth frame at most (faster; the photo's "
       "face follows every frame)");
@@ -72,9 +76,17 @@ struct BackendOptions {
       "With the head detail, move the network's depth onto the fitted face mesh, reaching this fraction of the "
       "image height from the face (0 = the whole head; < 0 = off)");
   }
-  // Throws InvalidOptions for an unknown config, quality level or detail mode.
+  // Throws InvalidOptions for an unknown config, quality level or detail mode, --fusion with
+  // --detail off or geometric.
   void Validate() const;
 };
+
+// The fusion weights that finish the detail frames of `options`: --fusion when given; with
+// --detail head, the trained model (not --random-weights, which the net never saw) and no
+// --fusion, the bundled net (ResourcePath(kBundledFusionFile)) when it is installed; else ""
+// (the geometric composite). When the bundled net is missing, `note` (if given) says so and
+// where it was looked for.
+std::string FusionWeightsOf(const BackendOptions& options, std::string* note = nullptr);
 
 // Builds the frame source for `portrait` (BGR8). Reports stages through ctx and honours
 // cancel. Throws InvalidInput (no face), MissingData (models not installed), Cancelled.
@@ -91,7 +103,7 @@ struct PortraitPaths {
   // this header after Qt and must not see LibTorch's headers).
   std::shared_ptr<const FrameSource> face;     // the detail path on the face only
   std::shared_ptr<const FrameSource> detail;   // the detail path on the head (the default)
-  std::shared_ptr<const FrameSource> learned;  // the same finished by the fusion net (options.fusion set)
+  std::shared_ptr<const FrameSource> learned;  // the same finished by the fusion net (FusionWeightsOf(options), if any)
   std::shared_ptr<const FrameSource> preview;
   face::AlignedPortrait portrait;  // the photo's aligned crop, matte and masks they were built from
   double bake_seconds = 0.0;       // building the head detail path (its source-view depth bakes)

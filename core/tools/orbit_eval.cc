@@ -117,8 +117,14 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
   OrbitEvalReport report;
   report.yaws = options.YawList();
   const size_t n_yaw = report.yaws.size();
+  BackendOptions backend;
+  backend.checkpoint = options.checkpoint;
+  backend.data_dir = options.data_dir;
+  backend.fusion = options.fusion;
+  backend.align_depth = options.align_depth;
+  backend.Validate();
   std::vector<std::string> keys = {"network", "preview", "paste", "face", "detail"};
-  if (!options.fusion.empty()) keys.push_back("learned");
+  if (!FusionWeightsOf(backend).empty()) keys.push_back("learned");  // CreatePortraitPaths's learned path
   std::vector<Accumulator> acc(keys.size());
   for (auto& a : acc) {
     a.identity.assign(n_yaw, 0.0);
@@ -132,12 +138,6 @@ OrbitEvalReport RunOrbitEvaluation(const OrbitEvalOptions& options, RunContext& 
   fo.data_dir = options.data_dir;
   fo.expression = false;  // identity, landmarks and pose only
   const face::FaceMetrics metrics(fo);
-  BackendOptions backend;
-  backend.checkpoint = options.checkpoint;
-  backend.data_dir = options.data_dir;
-  backend.fusion = options.fusion;
-  backend.align_depth = options.align_depth;
-  backend.Validate();
 
   const int size = options.size;
   const int shown = std::min<int>(options.contact_photos, static_cast<int>(options.photos.size()));

@@ -45,7 +45,7 @@ struct OrbitEvalOptions {
   int contact_photos = 2;
   // Neural model checkpoint ("" = the installed or bundled model).
   std::string checkpoint;
-  // Fusion net weights: adds the learned path's row ("" = none).
+  // Fusion net weights of the learned path's row ("" = the bundled net, FusionWeightsOf).
   std::string fusion;
   // BackendOptions::align_depth of the detail paths (< 0 = off, the default).
   double align_depth = -1.0;
@@ -62,7 +62,7 @@ struct OrbitEvalOptions {
     v("jaw_value", jaw_value, "Value of that control");
     v("contact_photos", contact_photos, "Photos shown in orbit.png");
     v("checkpoint", checkpoint, "Neural model checkpoint (default: the installed or bundled model)");
-    v("fusion", fusion, "Fusion net weights: adds the learned path's row");
+    v("fusion", fusion, "Fusion net weights of the learned path's row (default: the bundled net)");
     v("align_depth", align_depth,
       "Detail paths: move the network's depth onto the fitted face mesh, reaching this fraction of the image height "
       "(0 = the whole head; < 0 = off)");
@@ -77,7 +77,7 @@ struct OrbitEvalOptions {
 };
 
 struct OrbitPathResult {
-  std::string key;   // network, preview, paste, face, detail
+  std::string key;   // network, preview, paste, face, detail, learned (when a fusion net finishes the detail)
   std::string name;  // the frame source's label (or the paste's description)
   // Per yaw (OrbitEvalReport::yaws): means over the photos whose render has a face, and counts.
   std::vector<double> identity;

@@ -218,6 +218,7 @@ FusionNetOptions FusionTrainOptions::NetOptions() const {
   net.turn = turn;
   net.gate_by_opacity = gate_by_opacity;
   net.turn_keeps_face = turn_keeps_face;
+  net.turn_open = turn_open;
   return net;
 }
 

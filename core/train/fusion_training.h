@@ -74,6 +74,7 @@ struct FusionTrainOptions {
   bool turn = false;        // FusionNetOptions::turn; --init may start from a net without it
   bool gate_by_opacity = false;  // FusionNetOptions::gate_by_opacity
   bool turn_keeps_face = false;  // FusionNetOptions::turn_keeps_face (with turn)
+  double turn_open = 1.0;        // FusionNetOptions::turn_open (with turn)
   bool progress = true;
   std::string data_dir;  // where the MobileNetV2 weights are ("" = default)
 
@@ -96,6 +97,7 @@ struct FusionTrainOptions {
     v("turn", turn, "Give the net the view's turn from the photo and let it act on the warped photo in proportion");
     v("gate_by_opacity", gate_by_opacity, "Let the residual act only on the frame's opaque pixels");
     v("turn_keeps_face", turn_keeps_face, "With --turn: keep the face warp's photo at every turn (only the depth warp opens)");
+    v("turn_open", turn_open, "With --turn: the share (0..1) of the turn's opening that the warped photo gets");
     v("seed", seed, "Seed of the crops and batches");
     v("validate_every", validate_every, "Steps between validations");
     v("validate_samples", validate_samples, "Validation frames");

@@ -122,8 +122,10 @@ TEST(Animate, Mp4MatchesTheDriversFramesAndRateAndKeepsItsAudio) {
   // The bundled neural model renders by default, and the output says which model it was.
   EXPECT_NE(r.out.find("Renderer: the bundled neural avatar model"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("Frames rendered by: Neural avatar: bundled neural model ckpt:"), std::string::npos) << r.out;
-  // ... under the photo's detail path (the default; --detail off shows the network alone).
-  EXPECT_NE(r.out.find(" + the photo's detail on the head\n"), std::string::npos) << r.out;
+  // ... under the photo's detail path finished by the bundled fusion net (the default; --detail
+  // geometric leaves the net out, --detail off shows the network alone).
+  EXPECT_NE(r.out.find(" + the photo's detail on the head, finished by the fusion net (step "), std::string::npos)
+      << r.out;
   EXPECT_EQ(r.out.find("timing and audio only"), std::string::npos) << "the driver was not measured\n" << r.out;
   const std::string probe = Probe(out);
   EXPECT_NE(probe.find("video,15/1,30"), std::string::npos) << probe;

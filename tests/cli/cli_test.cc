@@ -12,6 +12,8 @@
 #include "common/run_process.h"
 #include "common/temp_dir.h"
 #include "core/io/image_io.h"
+#include "core/io/resources.h"
+#include "core/model/fusion_net.h"
 
 namespace avatar {
 namespace {
@@ -43,6 +45,9 @@ TEST(Cli, VersionPrintsTheVersion) {
   EXPECT_EQ(r.exit_code, 0);
   EXPECT_EQ(r.out.rfind("avatar-studio 0.", 0), 0u) << r.out;
   EXPECT_NE(r.out.find("LibTorch"), std::string::npos);
+  // Which fusion net finishes the detail frames by default: the bundled one of the source tree.
+  EXPECT_NE(r.out.find("detail finish: "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("fusion-default.ckpt (bundled)"), std::string::npos) << r.out;
 }
 
 TEST(Cli, StartsWithPassiveOpenMpWaitUnlessTheUserChoseAPolicy) {
@@ -95,6 +100,33 @@ TEST(Cli, MissingInputFileIsAnErrorNamingTheFile) {
   EXPECT_NE(r.err.find("no_such_portrait.jpg"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("check the path"), std::string::npos) << r.err;
   EXPECT_TRUE(dir.List().empty());
+}
+
+// `fusion export` writes the shipped form of trained weights with the inference setting asked
+// for; bad settings and missing files are errors that name them, and nothing is written.
+TEST(Cli, FusionExportWritesTheShippedFormAndRefusesBadSettings) {
+  TempDir dir;
+  const std::string bundled = ResourcePath(kBundledFusionFile).string();
+  const std::string out = (dir / "shipped.ckpt").string();
+  const auto r = InProcess({"fusion", "export", "--weights", bundled, "--out", out, "--turn-open", "0.5"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("turn_open 0.5"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(", float16"), std::string::npos) << r.out;
+  FusionNetInfo info;
+  LoadFusionNet(out, &info);
+  EXPECT_EQ(info.options.turn_open, 0.5);
+  const auto bad = InProcess({"fusion", "export", "--weights", bundled, "--out", (dir / "x.ckpt").string(),
+                              "--turn-open", "3"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("--turn-open"), std::string::npos) << bad.err;
+  const auto no_out = InProcess({"fusion", "export", "--weights", bundled});
+  EXPECT_EQ(no_out.exit_code, 2);
+  EXPECT_NE(no_out.err.find("--out"), std::string::npos) << no_out.err;
+  const auto missing = InProcess({"fusion", "export", "--weights", (dir / "none.ckpt").string(), "--out",
+                                  (dir / "x.ckpt").string()});
+  EXPECT_EQ(missing.exit_code, 1);
+  EXPECT_NE(missing.err.find("none.ckpt"), std::string::npos) << missing.err;
+  EXPECT_FALSE(std::filesystem::exists(dir / "x.ckpt"));
 }
 
 TEST(Cli, ViewWritesTheViewportImage) {

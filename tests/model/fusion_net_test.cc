@@ -152,6 +152,62 @@ TEST(FusionNet, TheTurnOpensTheWarpedPhotoInProportion) {
   FusionNetOptions face_without_turn = face_options;
   face_without_turn.turn = false;
   EXPECT_THROW(face_without_turn.Validate(), InvalidOptions);
+  // turn_open: the turn opens the depth warp's photo by that share of its fraction (a quarter
+  // here: 1/12 of the residual at 15 degrees, 1/4 at 60), the face stays, the unwarped columns
+  // take all of it.
+  FusionNetOptions share_options = face_options;
+  share_options.turn_open = 0.25;
+  FusionNet shared(share_options);
+  CopyFusionWeights(net, shared);
+  torch::Tensor xs = xf.clone();
+  xs.slice(1, 7, 8).slice(3, 12, 16).zero_();  // the depth warp reached columns 8-11 only
+  const torch::Tensor ys = shared->forward(xs, turn), cs = xs.slice(1, 0, 3);
+  const auto [rs, ms] = shared->Heads(xs, turn);
+  const torch::Tensor full_s = ms * rs;
+  for (int b = 0; b < 3; ++b) {
+    EXPECT_TRUE(torch::equal(ys[b].slice(2, 0, 8), cs[b].slice(2, 0, 8))) << b;
+    EXPECT_TRUE(torch::allclose(ys[b].slice(2, 12, 16), (cs + full_s)[b].slice(2, 12, 16), 1e-5, 1e-6)) << b;
+  }
+  EXPECT_TRUE(torch::equal(ys[0].slice(2, 8, 12), cs[0].slice(2, 8, 12)));
+  EXPECT_TRUE(torch::allclose(ys[1].slice(2, 8, 12), (cs + full_s / 12.0)[1].slice(2, 8, 12), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(ys[2].slice(2, 8, 12), (cs + full_s / 4.0)[2].slice(2, 8, 12), 1e-5, 1e-6));
+  // At 0 the turn opens nothing: the photo wherever a warp reached, at every turn.
+  FusionNetOptions shut_options = share_options;
+  shut_options.turn_open = 0.0;
+  FusionNet shut(shut_options);
+  CopyFusionWeights(net, shut);
+  const torch::Tensor y_shut = shut->forward(xs, turn);
+  for (int b = 0; b < 3; ++b) EXPECT_TRUE(torch::equal(y_shut[b].slice(2, 0, 12), cs[b].slice(2, 0, 12))) << b;
+  for (const double bad_share : {-0.1, 1.5, static_cast<double>(NAN)}) {
+    FusionNetOptions wrong = share_options;
+    wrong.turn_open = bad_share;
+    EXPECT_THROW(wrong.Validate(), InvalidOptions) << bad_share;
+  }
+  // keep_eye_mouth: no residual on the eye/mouth region (channel 9), half of it at 0.5.
+  FusionNetOptions mouth_options = share_options;
+  mouth_options.keep_eye_mouth = true;
+  FusionNet mouth_kept(mouth_options);
+  CopyFusionWeights(net, mouth_kept);
+  torch::Tensor xm = xs.clone();
+  xm.slice(1, 9, 10).zero_();
+  xm.slice(1, 9, 10).slice(2, 0, 4).fill_(1.0);  // rows 0-3: the eyes and mouth
+  xm.slice(1, 9, 10).slice(2, 4, 8).fill_(0.5);  // rows 4-7: half
+  const torch::Tensor ym = mouth_kept->forward(xm, turn), ysm = shared->forward(xm, turn), cm = xm.slice(1, 0, 3);
+  EXPECT_TRUE(torch::equal(ym.slice(2, 0, 4), cm.slice(2, 0, 4)));
+  EXPECT_TRUE(torch::allclose(ym.slice(2, 4, 8), (cm + 0.5 * (ysm - cm)).slice(2, 4, 8), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(ym.slice(2, 8, 16), ysm.slice(2, 8, 16), 1e-5, 1e-6));
+  FusionNetOptions mouth_few = mouth_options;
+  mouth_few.in_channels = 9;
+  mouth_few.keep_warped = false;
+  mouth_few.turn = false;
+  mouth_few.turn_keeps_face = false;
+  mouth_few.turn_open = 1.0;
+  mouth_few.gate_by_opacity = false;
+  EXPECT_THROW(mouth_few.Validate(), InvalidOptions);
+  FusionNetOptions share_without_turn = share_options;
+  share_without_turn.turn = false;
+  share_without_turn.turn_keeps_face = false;
+  EXPECT_THROW(share_without_turn.Validate(), InvalidOptions);
   FusionNetOptions few = gated_options;
   few.in_channels = 10;
   few.keep_warped = false;
@@ -321,8 +377,51 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
     EXPECT_TRUE(both.turn);
     EXPECT_TRUE(both.gate_by_opacity);
     EXPECT_FALSE(both.turn_keeps_face);
+    EXPECT_EQ(both.turn_open, 1.0);
     turned.turn_keeps_face = true;
     EXPECT_TRUE(stored(turned, "face.ckpt").turn_keeps_face);
+    turned.turn_open = 0.0625;
+    EXPECT_EQ(stored(turned, "share.ckpt").turn_open, 0.0625);
+    EXPECT_EQ(open.turn_open, 1.0);
+    EXPECT_FALSE(open.keep_eye_mouth);
+    // `fusion export`: the same weights in float16 with the inference setting changed, step and
+    // provenance kept; a setting the stored net cannot take names the file.
+    SaveFusionNet(dir / "trained.ckpt", FusionNet([&] {
+                    FusionNetOptions t = turned;
+                    t.turn_open = 1.0;
+                    return t;
+                  }()),
+                  info, false);
+    FusionExportOptions share;
+    share.turn_open = 0.125;
+    const FusionNetInfo exported = ExportFusionNet(dir / "trained.ckpt", dir / "shipped.ckpt", share);
+    EXPECT_EQ(exported.options.turn_open, 0.125);
+    EXPECT_TRUE(exported.options.turn_keeps_face);
+    EXPECT_EQ(exported.step, 1234);
+    EXPECT_EQ(exported.data_provenance, "a test");
+    const FusionNet trained = LoadFusionNet(dir / "trained.ckpt"), shipped = LoadFusionNet(dir / "shipped.ckpt");
+    const auto pt = trained->parameters(), ps = shipped->parameters();
+    ASSERT_EQ(pt.size(), ps.size());
+    for (size_t k = 0; k < pt.size(); ++k) EXPECT_TRUE(torch::allclose(pt[k], ps[k], 1e-3, 1e-4)) << k;
+    EXPECT_LT(std::filesystem::file_size(dir / "shipped.ckpt"), std::filesystem::file_size(dir / "trained.ckpt"));
+    EXPECT_FALSE(exported.options.keep_eye_mouth);
+    FusionExportOptions as_stored;
+    EXPECT_EQ(ExportFusionNet(dir / "share.ckpt", dir / "same.ckpt", as_stored).options.turn_open, 0.0625);
+    FusionExportOptions mouth;
+    mouth.keep_eye_mouth = true;
+    const FusionNetInfo mouth_kept = ExportFusionNet(dir / "shipped.ckpt", dir / "mouth.ckpt", mouth);
+    EXPECT_TRUE(mouth_kept.options.keep_eye_mouth);
+    EXPECT_EQ(mouth_kept.options.turn_open, 0.125);  // the rest as stored
+    EXPECT_TRUE(ExportFusionNet(dir / "mouth.ckpt", dir / "again.ckpt", as_stored).options.keep_eye_mouth);
+    try {
+      ExportFusionNet(dir / "open.ckpt", dir / "never.ckpt", share);
+      ADD_FAILURE() << "a net without the turn input took turn_open";
+    } catch (const InvalidOptions& e) {
+      EXPECT_NE(std::string(e.what()).find("open.ckpt"), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(dir / "never.ckpt"));
+    share.turn_open = 2.0;
+    EXPECT_THROW(ExportFusionNet(dir / "share.ckpt", dir / "never.ckpt", share), InvalidOptions);
   }
   const FusionNet b = LoadFusionNet(dir / "f16.ckpt");
   const auto p = net->parameters(), pa = a->parameters(), pb = b->parameters();

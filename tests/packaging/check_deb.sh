@@ -43,7 +43,7 @@ for want in usr/bin/avatar-studio usr/share/applications/avatar-studio.desktop \
   grep -qx "$want" "$work/files.txt" || fail "the package lacks /$want"
 done
 # Under share/avatar-studio: the project's models plus exactly the list's "deb" files.
-expected=(models/goha-default.ckpt morphable/face_model.avmm morphable/PROVENANCE.txt)
+expected=(models/goha-default.ckpt models/fusion-default.ckpt morphable/face_model.avmm morphable/PROVENANCE.txt)
 while IFS=$'\t' read -r kind _ _ member dest ship; do
   { [ "$kind" = file ] && [ "$ship" = deb ]; } || continue
   if [[ "$dest" == */ ]]; then expected+=("$dest${member##*/}"); else expected+=("$dest"); fi
@@ -61,7 +61,7 @@ while IFS= read -r f; do
   for pattern in "${expected[@]}"; do [[ "$f" == $pattern ]] && known=1; done
   [ $known -eq 1 ] || fail "the package carries /usr/share/avatar-studio/$f, which data-packages.tsv does not mark deb"
 done <<<"$shipped"
-echo "/usr/share/avatar-studio holds $(wc -l <<<"$shipped") files: the 3 of the project and the $((${#expected[@]} - 3)) that data-packages.tsv ships"
+echo "/usr/share/avatar-studio holds $(wc -l <<<"$shipped") files: the 4 of the project and the $((${#expected[@]} - 4)) that data-packages.tsv ships"
 
 # Dependencies.
 depends=$(dpkg-deb -f "$deb" Depends)
@@ -96,6 +96,8 @@ echo "--- the installed binary, HOME=$home (empty), no AVATAR_DATA_DIR"
 installed --version | tee "$work/version.txt"
 grep -q "default model: $share/models/goha-default.ckpt (bundled)" "$work/version.txt" ||
   fail "the installed binary does not use the packaged model"
+grep -q "detail finish: $share/models/fusion-default.ckpt (bundled)" "$work/version.txt" ||
+  fail "the installed binary does not use the packaged fusion net"
 if installed analyze "$share/samples/grace_hopper.jpg" --json >"$work/analyze.json" 2>"$work/analyze.err"; then
   faces=$(grep -o '"box"' "$work/analyze.json" | wc -l)
   echo "analyze: $faces face(s) in the packaged photo, identity embedding by" \
@@ -118,6 +120,7 @@ fi
 if installed render "$work/grace.avatar" --yaw 20 -o "$work/frame.png" >"$work/render.txt" 2>&1; then
   cat "$work/render.txt"
   grep -q "bundled neural model" "$work/render.txt" || fail "render did not use the bundled neural model"
+  grep -q "finished by the fusion net" "$work/render.txt" || fail "render did not finish the frame with the fusion net"
   file "$work/frame.png" | grep -q "PNG image data" || fail "render wrote no PNG"
   bytes=$(stat -c %s "$work/frame.png")
   echo "frame: $(file -b "$work/frame.png" | cut -d, -f2), $bytes bytes"

@@ -25,6 +25,7 @@
 #include "core/model/fusion_net.h"
 #include "core/pipeline/detail_source.h"
 #include "core/pipeline/fusion_input.h"
+#include "core/pipeline/live.h"
 #include "core/pipeline/head_mesh.h"
 #include "core/render/view_pose.h"
 #include "core/pipeline/morphable_expression_source.h"
@@ -624,6 +625,82 @@ TEST_F(Detail, LayersAreTheFrameAndPackIntoTheFusionInput) {
   EXPECT_EQ(cv::norm(BgrFromRgb(x[0].slice(0, 0, 3)), frame.bgr, cv::NORM_INF), 0.0);
 }
 
+// A detail source with a fusion net: the frame is the net's output on the frame's own layers;
+// above kFusionNetSide the net runs on the layers scaled down to it and its change, scaled up, is
+// added to the full-size composite. An untrained net (residual head at zero) leaves every size
+// exactly the composite; a net whose change is a constant +0.2 (25.5 grey levels) everywhere
+// gives the composite plus that constant at 96 px and at 320 px (the scaled path).
+TEST_F(Detail, TheFusionNetFinishesTheFrameAndLargeFramesGetItsChangeScaledUp) {
+  testing::TempDir dir;
+  torch::manual_seed(3);
+  FusionNetOptions o;
+  o.widths = {4, 8};
+  FusionNetInfo info;
+  info.step = 7;
+  SaveFusionNet(dir / "zero.ckpt", FusionNet(o), info, false);
+  FusionNetOptions everywhere = o;
+  everywhere.keep_warped = false;  // the residual may act on every pixel
+  FusionNet shift(everywhere);
+  {
+    torch::NoGradGuard no_grad;
+    for (auto& p : shift->named_parameters()) {
+      if (p.key() == "head.weight") p.value().zero_();
+      if (p.key() == "head.bias") {
+        p.value().slice(0, 0, 3).fill_(std::atanh(0.1));  // 2 tanh = 0.2
+        p.value().slice(0, 3, 4).fill_(30.0);             // the blend mask at 1
+      }
+    }
+  }
+  SaveFusionNet(dir / "shift.ckpt", shift, info, false);
+  const DetailFrameSource geometric(Base(), *analysis_);
+  DetailOptions zero_options, shift_options;
+  zero_options.fusion = (dir / "zero.ckpt").string();
+  shift_options.fusion = (dir / "shift.ckpt").string();
+  const DetailFrameSource zero(Base(), *analysis_, zero_options), shifted(Base(), *analysis_, shift_options);
+  EXPECT_NE(shifted.Label().find("finished by the fusion net (step 7, fusion:"), std::string::npos) << shifted.Label();
+  EXPECT_EQ(geometric.Label().find("fusion"), std::string::npos) << geometric.Label();
+  for (const int side : {96, 320}) {
+    FrameRequest request;
+    request.view = geometric.SourcePose();
+    request.view.yaw += 20.0;
+    request.width = request.height = side;
+    RunContext ctx;
+    const RenderedFrame composite = geometric.Render(request, ctx);
+    const RenderedFrame same = zero.Render(request, ctx), up = shifted.Render(request, ctx);
+    ASSERT_EQ(up.bgr.size(), cv::Size(side, side));
+    EXPECT_EQ(cv::norm(same.bgr, composite.bgr, cv::NORM_INF), 0.0) << side;
+    EXPECT_EQ(cv::norm(up.alpha, composite.alpha, cv::NORM_INF), 0.0) << side;
+    cv::Mat expected;
+    composite.bgr.convertTo(expected, CV_32FC3);
+    expected = cv::min(expected + cv::Scalar::all(25.5), 255.0);
+    cv::Mat got;
+    up.bgr.convertTo(got, CV_32FC3);
+    EXPECT_LE(cv::norm(got, expected, cv::NORM_INF), 1.0) << side;
+  }
+  // Live driving renders the geometric composite: LiveFrameSource drops the net (and passes a
+  // source without the detail path through as it is).
+  const auto shared_shifted = std::make_shared<const DetailFrameSource>(Base(), *analysis_, shift_options);
+  ASSERT_TRUE(shared_shifted->HasFusion());
+  const std::shared_ptr<const FrameSource> live = LiveFrameSource(shared_shifted, 2);
+  const auto* live_detail = dynamic_cast<const DetailFrameSource*>(live.get());
+  ASSERT_NE(live_detail, nullptr);
+  EXPECT_FALSE(live_detail->HasFusion());
+  EXPECT_EQ(live->Label(), geometric.Label());
+  FrameRequest request;
+  request.view = geometric.SourcePose();
+  request.view.yaw += 10.0;
+  request.width = request.height = 96;
+  RunContext ctx;
+  EXPECT_EQ(cv::norm(live->Render(request, ctx).bgr, geometric.Render(request, ctx).bgr, cv::NORM_INF), 0.0);
+  const std::shared_ptr<const FrameSource> live_named = LiveFrameSource(shared_shifted, 2, true);
+  const auto* kept = dynamic_cast<const DetailFrameSource*>(live_named.get());
+  ASSERT_NE(kept, nullptr);
+  EXPECT_TRUE(kept->HasFusion());  // `live --fusion WEIGHTS`
+  const std::shared_ptr<const FrameSource> base = Base();
+  EXPECT_EQ(LiveFrameSource(base).get(), base.get());
+  EXPECT_THROW(LiveFrameSource(nullptr), InvalidInput);
+}
+
 // A stored analysis (the data factory's crop, matte, mask and fit) rebuilds the analysis the
 // pipeline made: the same texture and the same preview frames.
 TEST_F(Detail, AnalysisFromFitRebuildsTheAnalysis) {
@@ -947,8 +1024,8 @@ TEST_F(Detail, TheNetworkTakesANewExpressionOnEveryNthFrameAndTheFaceOnEvery) {
   std::cout << "[detail] jawOpen 0.24 over the network's jawOpen 0: " << changed << " channel values differ from jawOpen 0\n";
   EXPECT_GT(changed, 100);
   for (const cv::Mat& f : frames) EXPECT_EQ(f.size(), cv::Size(128, 128));
-  // The studio's Live source: the same path over the same base, every 2nd frame.
-  const std::shared_ptr<const DetailFrameSource> every2 = source.WithBaseExpressionEvery(2);
+  // Live driving's source: the same path over the same base, every 2nd frame.
+  const std::shared_ptr<const DetailFrameSource> every2 = source.ForLive(2);
   const size_t rebaked = recording->requests.size();  // its own source-view depth
   for (int k = 0; k < 3; ++k) {
     FrameRequest r;
@@ -959,7 +1036,7 @@ TEST_F(Detail, TheNetworkTakesANewExpressionOnEveryNthFrameAndTheFaceOnEvery) {
     ASSERT_EQ(recording->requests.size(), rebaked + k + 1);
     EXPECT_FLOAT_EQ(recording->requests.back().expression.Get("jawOpen"), 0.3f * static_cast<float>(k - k % 2)) << k;
   }
-  EXPECT_THROW(source.WithBaseExpressionEvery(0), InvalidOptions);
+  EXPECT_THROW(source.ForLive(0), InvalidOptions);
   DetailOptions bad;
   bad.base_expression_every = 0;
   EXPECT_THROW(bad.Validate(), InvalidOptions);

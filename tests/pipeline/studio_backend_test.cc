@@ -8,6 +8,8 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <filesystem>
+#include <string>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -16,6 +18,8 @@
 #include "core/face/face_analyzer.h"
 #include "core/io/data_paths.h"
 #include "core/io/image_io.h"
+#include "core/io/resources.h"
+#include "core/model/fusion_net.h"
 #include "core/pipeline/detail_source.h"
 #include "core/pipeline/studio_backend.h"
 #include "core/util/error.h"
@@ -84,15 +88,54 @@ TEST_F(StudioBackend, DefaultIsTheBundledNeuralModelAndItsFramesAreReal) {
   EXPECT_NE(BackendStatement(BackendOptions{}).find("bundled neural avatar model"), std::string::npos);
 }
 
-// The photo's detail over the neural head is the default; --detail off shows the network alone,
-// and CreatePortraitPaths builds every path from one analysis with the same labels.
+// The photo's detail over the neural head, finished by the bundled fusion net, is the default;
+// --detail geometric is the same without the net, --detail off shows the network alone, and
+// CreatePortraitPaths builds every path from one analysis with the same labels.
 TEST_F(StudioBackend, DetailPathIsTheDefaultAndOffShowsTheNetworkAlone) {
   RunContext ctx;
-  const auto with_detail = CreateFrameSource(*portrait_, BackendOptions{}, ctx);
+  const auto learned = CreateFrameSource(*portrait_, BackendOptions{}, ctx);
+  BackendOptions geometric_options;
+  geometric_options.detail = "geometric";
+  const auto with_detail = CreateFrameSource(*portrait_, geometric_options, ctx);
   BackendOptions off;
   off.detail = "off";
   const auto plain = CreateFrameSource(*portrait_, off, ctx);
   EXPECT_EQ(with_detail->Label(), plain->Label() + DetailLabel("head"));
+  const std::string bundled = ResourcePath(kBundledFusionFile).string();
+  FusionNetInfo bundled_info;
+  LoadFusionNet(bundled, &bundled_info);
+  EXPECT_EQ(FusionWeightsOf(BackendOptions{}), bundled);
+  EXPECT_EQ(learned->Label(), with_detail->Label() + ", finished by the fusion net (step " +
+                                  std::to_string(bundled_info.step) + ", fusion:" + bundled_info.fingerprint + ")");
+  EXPECT_TRUE(learned->Warnings() == with_detail->Warnings());
+  {
+    // The finish is the net's: finite, and not the composite at a turned view.
+    const RenderedFrame l = Render(*learned, 25), g = Render(*with_detail, 25);
+    EXPECT_TRUE(cv::checkRange(l.bgr) && cv::checkRange(l.alpha));
+    EXPECT_GT(cv::norm(l.bgr, g.bgr, cv::NORM_L1), 0.0) << "the fusion net changed nothing";
+    EXPECT_EQ(cv::norm(l.alpha, g.alpha, cv::NORM_INF), 0.0);
+  }
+  // Which weights finish the frames: --fusion when named; none with geometric, face or off
+  // unless named; none with random weights (the net never saw their renders).
+  BackendOptions named;
+  named.fusion = "/somewhere/f.ckpt";
+  EXPECT_EQ(FusionWeightsOf(named), "/somewhere/f.ckpt");
+  named.detail = "face";
+  EXPECT_EQ(FusionWeightsOf(named), "/somewhere/f.ckpt");
+  for (const char* mode : {"geometric", "face", "off"}) {
+    BackendOptions o;
+    o.detail = mode;
+    EXPECT_EQ(FusionWeightsOf(o), "") << mode;
+  }
+  BackendOptions random;
+  random.random_weights = true;
+  EXPECT_EQ(FusionWeightsOf(random), "");
+  for (const char* mode : {"geometric", "off"}) {
+    BackendOptions both;
+    both.detail = mode;
+    both.fusion = "f.ckpt";
+    EXPECT_THROW(both.Validate(), InvalidOptions) << mode;
+  }
   EXPECT_EQ(plain->Label().find(kDetailLabel), std::string::npos) << plain->Label();
   EXPECT_EQ(&Unwrapped(*plain), plain.get());
   EXPECT_NE(&Unwrapped(*with_detail), with_detail.get());
@@ -107,6 +150,8 @@ TEST_F(StudioBackend, DetailPathIsTheDefaultAndOffShowsTheNetworkAlone) {
   const PortraitPaths paths = CreatePortraitPaths(*portrait_, BackendOptions{}, ctx);
   EXPECT_EQ(paths.network->Label(), plain->Label());
   EXPECT_EQ(paths.detail->Label(), with_detail->Label());
+  ASSERT_NE(paths.learned, nullptr);
+  EXPECT_EQ(paths.learned->Label(), learned->Label());
   EXPECT_EQ(paths.preview->Label().rfind("Preview: morphable model", 0), 0u) << paths.preview->Label();
   EXPECT_EQ(paths.detail->Wrapped(), paths.network);
   EXPECT_EQ(paths.face->Wrapped(), paths.network);
@@ -133,6 +178,22 @@ TEST_F(StudioBackend, MorphablePreviewWhenChosenOrWhenNoModelLoads) {
   const std::string label = fallback->Label();
   unsetenv("AVATAR_RESOURCE_DIR");
   EXPECT_EQ(label.rfind("Preview: morphable model (neural model unavailable: No GOHA model found", 0), 0u) << label;
+  // The bundled model without the bundled fusion net: the geometric composite, and a warning
+  // that says so and where it looked.
+  std::filesystem::create_directories(empty.path() / "models");
+  std::filesystem::create_symlink(std::filesystem::absolute(ResourcePath(kBundledModelFile)),
+                                  empty.path() / "models" / "goha-default.ckpt");
+  ASSERT_EQ(setenv("AVATAR_RESOURCE_DIR", empty.path().c_str(), 1), 0);
+  std::string note;
+  const std::string weights = FusionWeightsOf(defaults, &note);
+  const auto unfinished = CreateFrameSource(*portrait_, defaults, ctx);
+  unsetenv("AVATAR_RESOURCE_DIR");
+  EXPECT_EQ(weights, "");
+  EXPECT_NE(note.find((empty.path() / "models" / "fusion-default.ckpt").string()), std::string::npos) << note;
+  EXPECT_EQ(unfinished->Label().find("fusion"), std::string::npos) << unfinished->Label();
+  EXPECT_NE(unfinished->Label().find(DetailLabel("head")), std::string::npos) << unfinished->Label();
+  ASSERT_FALSE(unfinished->Warnings().empty());
+  EXPECT_EQ(unfinished->Warnings().back(), note);
   BackendOptions bad;
   bad.renderer = "mesh";
   EXPECT_THROW(bad.Validate(), InvalidOptions);

@@ -31,10 +31,11 @@ TEST(OrbitEval, ScoresEveryPathAndTheDetailKeepsThePhoto) {
   o.contact_photos = 1;
   RunContext ctx;
   const OrbitEvalReport r = RunOrbitEvaluation(o, ctx);
-  ASSERT_EQ(r.paths.size(), 5u);
+  ASSERT_EQ(r.paths.size(), 6u);  // network, preview, paste, face, detail and learned (the bundled fusion net)
   ASSERT_EQ(r.yaws.size(), 2u);
   const OrbitPathResult* network = nullptr;
   const OrbitPathResult* detail = nullptr;
+  const OrbitPathResult* learned = nullptr;
   for (const auto& p : r.paths) {
     ASSERT_EQ(p.identity.size(), 2u) << p.key;
     for (size_t y = 0; y < 2; ++y) {
@@ -46,8 +47,10 @@ TEST(OrbitEval, ScoresEveryPathAndTheDetailKeepsThePhoto) {
     EXPECT_TRUE(std::isfinite(p.source_psnr)) << p.key;
     if (p.key == "network") network = &p;
     if (p.key == "detail") detail = &p;
+    if (p.key == "learned") learned = &p;
   }
-  ASSERT_TRUE(network != nullptr && detail != nullptr);
+  ASSERT_TRUE(network != nullptr && detail != nullptr && learned != nullptr);
+  EXPECT_NE(learned->name.find("finished by the fusion net"), std::string::npos) << learned->name;
   ASSERT_EQ(detail->found[0], 1) << "no face found in the detail path's source view";
   std::cout << "identity at 0: network " << network->identity[0] << ", detail " << detail->identity[0]
             << "; detail outside the face: network " << network->outside_detail[0] << ", detail "
@@ -60,7 +63,7 @@ TEST(OrbitEval, ScoresEveryPathAndTheDetailKeepsThePhoto) {
   EXPECT_TRUE(std::filesystem::exists(r.markdown_path));
   EXPECT_TRUE(std::filesystem::exists(r.contact_path));
   const nlohmann::json j = nlohmann::json::parse(ReadFileBytes(r.json_path));
-  EXPECT_EQ(j["paths"].size(), 5u);
+  EXPECT_EQ(j["paths"].size(), 6u);
   EXPECT_EQ(j["per_photo"].size(), 1u);
 }
 
