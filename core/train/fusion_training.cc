@@ -219,6 +219,7 @@ FusionNetOptions FusionTrainOptions::NetOptions() const {
   net.gate_by_opacity = gate_by_opacity;
   net.turn_keeps_face = turn_keeps_face;
   net.turn_open = turn_open;
+  net.keep_eye_mouth = keep_eye_mouth;
   return net;
 }
 

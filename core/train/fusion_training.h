@@ -75,6 +75,7 @@ struct FusionTrainOptions {
   bool gate_by_opacity = false;  // FusionNetOptions::gate_by_opacity
   bool turn_keeps_face = false;  // FusionNetOptions::turn_keeps_face (with turn)
   double turn_open = 1.0;        // FusionNetOptions::turn_open (with turn)
+  bool keep_eye_mouth = false;   // FusionNetOptions::keep_eye_mouth
   bool progress = true;
   std::string data_dir;  // where the MobileNetV2 weights are ("" = default)
 
@@ -98,6 +99,7 @@ struct FusionTrainOptions {
     v("gate_by_opacity", gate_by_opacity, "Let the residual act only on the frame's opaque pixels");
     v("turn_keeps_face", turn_keeps_face, "With --turn: keep the face warp's photo at every turn (only the depth warp opens)");
     v("turn_open", turn_open, "With --turn: the share (0..1) of the turn's opening that the warped photo gets");
+    v("keep_eye_mouth", keep_eye_mouth, "Keep the composite on the target's eyes and mouth (no residual there)");
     v("seed", seed, "Seed of the crops and batches");
     v("validate_every", validate_every, "Steps between validations");
     v("validate_samples", validate_samples, "Validation frames");

@@ -131,6 +131,29 @@ std::cout << "fusion training, " << threads << " threads" << (setup.turn ? ", tu
   torch::set_num_threads(2);
 }
 
+// The run's options build the net it trains, inference settings included (so that a run can
+// train with the settings its weights ship with); bad ones are refused before any work.
+TEST(FusionTraining, NetOptionsCarryEveryFlag) {
+  train::FusionTrainOptions o;
+  o.data = "set";
+  o.out_dir = "run";
+  o.turn = true;
+  o.turn_keeps_face = true;
+  o.turn_open = 0.25;
+  o.keep_eye_mouth = true;
+  o.gate_by_opacity = true;
+  const FusionNetOptions n = o.NetOptions();
+  EXPECT_TRUE(n.turn && n.turn_keeps_face && n.keep_eye_mouth && n.gate_by_opacity && n.keep_warped);
+  EXPECT_EQ(n.turn_open, 0.25);
+  EXPECT_NO_THROW(o.Validate());
+  o.turn_open = 2.0;
+  EXPECT_THROW(o.Validate(), InvalidOptions);
+  o.turn_open = 0.5;
+  o.turn = false;
+  o.turn_keeps_face = false;
+  EXPECT_THROW(o.Validate(), InvalidOptions);  // a share of a turn the net does not see
+}
+
 TEST(FusionTraining, ResumedRunContinuesTheStraightRun) {
   testing::TempDir dir;
   WriteTinySet(dir.path() / "set", "train", 8, 32, 9);
