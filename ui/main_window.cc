@@ -235,6 +235,7 @@ void MainWindow::createPanels() {
   });
   connect(source_panel_->randomWeightsBox(), &QCheckBox::toggled, this, [this] { showCachedQualityEstimates(); });
   connect(source_panel_, &SourcePanel::detailChanged, this, &MainWindow::applyDetailSwitch);
+  connect(source_panel_, &SourcePanel::finishChanged, this, &MainWindow::applyFinishSwitch);
   connect(source_panel_, &SourcePanel::qualityChanged, this, [this](const QString& quality) {
     if (source_) status_label_->setText(tr("Quality %1 applies from the next reconstruction (Ctrl+R)").arg(quality));
   });
@@ -409,7 +410,7 @@ BackendOptions MainWindow::backendOptions() const {
   o.renderer = source_panel_->morphablePreview() ? "morphable" : "neural";
   o.checkpoint = checkpoint_.toStdString();
   o.quality = source_panel_->quality().toStdString();
-  o.detail = source_panel_->photoDetail() ? "head" : "off";
+  o.detail = !source_panel_->photoDetail() ? "off" : source_panel_->learnedFinish() ? "head" : "geometric";
   return o;
 }
 
@@ -426,6 +427,23 @@ void MainWindow::applyDetailSwitch(bool on) {
   } else if (on && inner == nullptr && dynamic_cast<const SessionFrameSource*>(source_.get()) != nullptr) {
     status_label_->setText(tr("The photo's detail applies from the next reconstruction (Ctrl+R)"));
   }
+}
+
+void MainWindow::applyFinishSwitch(bool learned) {
+  // The detail source shown is rebuilt over the same network source with or without the fusion
+  // net; nothing is reconstructed. (The switch is disabled while the detail is off.)
+  BackendOptions o = backendOptions();
+  o.detail = learned ? "head" : "geometric";
+  std::string note;
+  const std::string weights = FusionWeightsOf(o, &note);
+  try {
+    if (const auto* detail = dynamic_cast<const DetailFrameSource*>(source_.get()))
+      setFrameSource(detail->WithFusion(weights));
+  } catch (const std::exception& e) {
+    showError(tr("Learned finish"), QString::fromUtf8(e.what()));
+    return;
+  }
+  if (learned && weights.empty() && !note.empty()) status_label_->setText(QString::fromStdString(note));
 }
 
 void MainWindow::setCheckpoint(const QString& path) {

@@ -58,6 +58,9 @@ class MainWindow : public QMainWindow {
   // The studio switch "Photo detail on the head": shows the detail path or the network render
   // alone, at once when the last reconstruction built the detail path.
   void applyDetailSwitch(bool on);
+  // The studio switch "Learned finish": the detail path finished by the bundled fusion net or
+  // the geometric composite, at once (the same network source, nothing reconstructed).
+  void applyFinishSwitch(bool learned);
   // Whether opening a portrait (File > Open, recent files, drag and drop, --open) starts its
   // reconstruction at once: Avatar > Reconstruct on Open, kept in the settings (default on).
   // Off, the photo stays in the viewport until Reconstruct is chosen (useful with the slow

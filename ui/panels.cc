@@ -134,9 +134,26 @@ SourcePanel::SourcePanel(QWidget* parent) : QWidget(parent) {
     emit detailChanged(on);
   });
   layout->addWidget(photo_detail_);
-  // The detail path goes over the neural avatar: nothing to switch under the morphable preview.
-  photo_detail_->setEnabled(!morphable_preview_->isChecked());
-  connect(morphable_preview_, &QCheckBox::toggled, photo_detail_, [this](bool on) { photo_detail_->setEnabled(!on); });
+  learned_finish_ = new QCheckBox(tr("Learned finishin&g (fusion net)"), this);
+  learned_finish_->setToolTip(
+      tr("Finishes each full frame of the photo's detail with the small fusion net shipped with the model "
+         "(repairs what the warp did not reach; about 30 ms a frame); off shows the geometric composite. "
+         "Live driving always shows the composite. (Alt+G)"));
+  learned_finish_->setChecked(QSettings().value("source/learnedFinish", true).toBool());
+  connect(learned_finish_, &QCheckBox::toggled, this, [this](bool on) {
+    QSettings().setValue("source/learnedFinish", on);
+    emit finishChanged(on);
+  });
+  layout->addWidget(learned_finish_);
+  // The detail path goes over the neural avatar: nothing to switch under the morphable preview,
+  // and the finish is the detail path's.
+  const auto enable = [this] {
+    photo_detail_->setEnabled(!morphable_preview_->isChecked());
+    learned_finish_->setEnabled(!morphable_preview_->isChecked() && photo_detail_->isChecked());
+  };
+  enable();
+  connect(morphable_preview_, &QCheckBox::toggled, this, enable);
+  connect(photo_detail_, &QCheckBox::toggled, this, enable);
 
   random_weights_ = new QCheckBox(tr("Use &random network weights"), this);
   random_weights_->setToolTip(
@@ -199,6 +216,7 @@ bool SourcePanel::randomWeights() const { return random_weights_->isChecked(); }
 bool SourcePanel::morphablePreview() const { return morphable_preview_->isChecked(); }
 
 bool SourcePanel::photoDetail() const { return photo_detail_->isChecked(); }
+bool SourcePanel::learnedFinish() const { return learned_finish_->isChecked(); }
 
 // ---------------------------------------------------------------------------- PosePanel
 

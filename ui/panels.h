@@ -56,12 +56,17 @@ class SourcePanel : public QWidget {
   // The photo's own detail over the neural head (BackendOptions::detail "head"), else "off".
   bool photoDetail() const;
   QCheckBox* photoDetailBox() const { return photo_detail_; }
+  // The photo's detail finished by the bundled fusion net (BackendOptions::detail "head"), else
+  // the geometric composite ("geometric"); only with photoDetail().
+  bool learnedFinish() const;
+  QCheckBox* learnedFinishBox() const { return learned_finish_; }
 
  signals:
   void reconstructRequested();
   void configChanged(const QString& config);
   void qualityChanged(const QString& quality);
   void detailChanged(bool on);
+  void finishChanged(bool learned);
 
  private:
   void redraw();
@@ -72,6 +77,7 @@ class SourcePanel : public QWidget {
   QCheckBox* random_weights_ = nullptr;
   QCheckBox* morphable_preview_ = nullptr;
   QCheckBox* photo_detail_ = nullptr;
+  QCheckBox* learned_finish_ = nullptr;
   QPushButton* reconstruct_ = nullptr;
   QImage portrait_;
   SourceOverlay overlay_;

@@ -190,6 +190,12 @@ std::shared_ptr<const DetailFrameSource> DetailFrameSource::ForLive(int every, b
   return std::make_shared<const DetailFrameSource>(base_, *analysis_, options);
 }
 
+std::shared_ptr<const DetailFrameSource> DetailFrameSource::WithFusion(const std::string& weights) const {
+  DetailOptions options = options_;
+  options.fusion = weights;
+  return std::make_shared<const DetailFrameSource>(base_, *analysis_, options);
+}
+
 const DetailFrameSource* DetailFrameSource::Find(const FrameSource* source) {
   std::shared_ptr<const FrameSource> keep;  // the chain below `source` is owned by it
   while (source != nullptr) {

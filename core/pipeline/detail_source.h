@@ -129,6 +129,10 @@ class DetailFrameSource : public FrameSource {
   // on 2 cores would take live under its 15 fps (docs/PERFORMANCE.md). Renders the source view's
   // depth again (one base render). Throws InvalidOptions.
   std::shared_ptr<const DetailFrameSource> ForLive(int every, bool keep_fusion = false) const;
+  // The same detail path over the same base finished by the fusion net of `weights` ("" = none:
+  // the geometric composite; the studio's "Learned finish" switch). Renders the source view's
+  // depth again (one base render). Throws Io / ModelLoad for weights that do not load.
+  std::shared_ptr<const DetailFrameSource> WithFusion(const std::string& weights) const;
   // The detail source `source` is or wraps (through FrameSource::Wrapped), or null.
   static const DetailFrameSource* Find(const FrameSource* source);
   const FrameSource& base() const { return *base_; }

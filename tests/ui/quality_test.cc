@@ -184,8 +184,21 @@ class QualityTest : public QObject {
     w->sourcePanel()->photoDetailBox()->setChecked(false);
     QCOMPARE(static_cast<const FrameSource*>(Neural(*w)), w->frameSource().get());
     QVERIFY(!QString::fromStdString(w->frameSource()->Label()).contains(QString::fromUtf8(kDetailLabel)));
+    QVERIFY(!w->sourcePanel()->learnedFinishBox()->isEnabled());  // the finish is the detail's
     w->sourcePanel()->photoDetailBox()->setChecked(true);
     QCOMPARE(w->frameSource(), with_detail);
+    QCOMPARE(Neural(*w), before);
+    // The "Learned finish" switch: off shows the geometric composite over the same network
+    // source at once, on the bundled net again.
+    QVERIFY(w->sourcePanel()->learnedFinishBox()->isEnabled());
+    QVERIFY(w->sourcePanel()->learnedFinish());
+    w->sourcePanel()->learnedFinishBox()->setChecked(false);
+    const std::string geometric = w->frameSource()->Label();
+    QVERIFY2(QString::fromStdString(geometric).endsWith(QString::fromStdString(DetailLabel("head"))), geometric.c_str());
+    QCOMPARE(Neural(*w), before);
+    QCOMPARE(w->frameSource()->Wrapped(), with_detail->Wrapped());
+    w->sourcePanel()->learnedFinishBox()->setChecked(true);
+    QCOMPARE(w->frameSource()->Label(), with_detail->Label());
     QCOMPARE(Neural(*w), before);
     // That first use of the model measured the ladder (this test's cache started empty), so the
     // `best` reconstruction below refines and then has nothing left to measure.
