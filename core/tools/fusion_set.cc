@@ -170,6 +170,7 @@ FusionSetReport BuildFusionSet(const FusionSetOptions& options, RunContext& ctx)
   BackendOptions backend;
   backend.checkpoint = options.checkpoint;
   backend.data_dir = options.data_dir;
+  backend.detail = "geometric";  // the set stores the composite's layers: no fusion net per source
   const std::shared_ptr<const Session> session = SharedSession(backend);
   FusionSetReport report;
   report.model = DescribeModel(session->Info());

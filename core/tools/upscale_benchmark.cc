@@ -220,6 +220,7 @@ UpscaleBenchmarkReport RunUpscaleBenchmark(const UpscaleBenchmarkOptions& option
     BackendOptions backend;
     backend.checkpoint = options.checkpoint;
     backend.data_dir = options.data_dir;
+    backend.detail = "geometric";  // the composite is what this measures: no fusion net per source
     const std::vector<size_t> picked = spread(clip_pairs.size(), options.detail_pairs);
     for (size_t k = 0; k < picked.size(); ++k) {
       ctx.ThrowIfCancelled();
