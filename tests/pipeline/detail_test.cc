@@ -699,6 +699,16 @@ TEST_F(Detail, TheFusionNetFinishesTheFrameAndLargeFramesGetItsChangeScaledUp) {
   const std::shared_ptr<const FrameSource> base = Base();
   EXPECT_EQ(LiveFrameSource(base).get(), base.get());
   EXPECT_THROW(LiveFrameSource(nullptr), InvalidInput);
+  // The studio's switch: the same path with or without the net; weights that do not load are an
+  // error naming the file (the window shows it and keeps its frame source).
+  EXPECT_EQ(shared_shifted->WithFusion("")->Label(), geometric.Label());
+  EXPECT_EQ(geometric.WithFusion(shift_options.fusion)->Label(), shifted.Label());
+  try {
+    geometric.WithFusion((dir / "missing.ckpt").string());
+    ADD_FAILURE() << "missing fusion weights were accepted";
+  } catch (const Io& e) {
+    EXPECT_NE(std::string(e.what()).find("missing.ckpt"), std::string::npos) << e.what();
+  }
 }
 
 // A stored analysis (the data factory's crop, matte, mask and fit) rebuilds the analysis the
