@@ -40,32 +40,41 @@ struct DetailFrameSource::Fusion {
   cv::Mat Finish(const DetailLayers& layers, double turn_degrees) {
     namespace F = torch::nn::functional;
     torch::NoGradGuard no_grad;
-    const torch::Tensor full = FusionInputFromBytes(FusionInputBytes(layers).unsqueeze(0));
-    const int64_t h = full.size(2), w = full.size(3);
-    torch::Tensor x = full;
-    const double scale = static_cast<double>(kFusionNetSide) / static_cast<double>(std::max(h, w));
+    const cv::Size size = layers.frame.bgr.size();
+    const double scale = static_cast<double>(kFusionNetSide) / static_cast<double>(std::max(size.width, size.height));
+    // The layers are scaled as bytes (cheaper than the 11 float planes at full size, and the same
+    // kind of input as the stored fusion sets).
+    DetailLayers small;
     if (scale < 1.0) {
-      const int64_t sh = std::max<int64_t>(1, std::llround(h * scale)), sw = std::max<int64_t>(1, std::llround(w * scale));
-      x = F::interpolate(full, F::InterpolateFuncOptions().size(std::vector<int64_t>{sh, sw}).mode(torch::kArea));
+      small = ScaledFusionLayers(layers, cv::Size(std::max(1, static_cast<int>(std::lround(size.width * scale))),
+                                                  std::max(1, static_cast<int>(std::lround(size.height * scale)))));
     }
+    const torch::Tensor x = FusionInputFromBytes(FusionInputBytes(scale < 1.0 ? small : layers).unsqueeze(0));
     const int64_t xh = x.size(2), xw = x.size(3);
     const int64_t factor = int64_t{1} << (static_cast<int64_t>(info.options.widths.size()) - 1);
     const int64_t ph = (factor - xh % factor) % factor, pw = (factor - xw % factor) % factor;
-    if (ph > 0 || pw > 0) x = F::pad(x, F::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate));
     torch::Tensor y;
     {
       std::lock_guard<std::mutex> lock(mutex);
-      y = net->forward(x, torch::tensor({turn_degrees}, torch::kFloat32));
+      y = net->forward(ph > 0 || pw > 0 ? F::pad(x, F::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate)) : x,
+                       torch::tensor({turn_degrees}, torch::kFloat32));
     }
     y = y.slice(2, 0, xh).slice(3, 0, xw);
-    if (scale < 1.0) {
-      const torch::Tensor change = y - x.slice(1, 0, 3).slice(2, 0, xh).slice(3, 0, xw);
-      y = full.slice(1, 0, 3) + F::interpolate(change, F::InterpolateFuncOptions()
-                                                           .size(std::vector<int64_t>{h, w})
-                                                           .mode(torch::kBilinear)
-                                                           .align_corners(false));
-    }
-    return BgrFromRgb(y[0].clamp(-1.0, 1.0));
+    if (scale >= 1.0) return BgrFromRgb(y[0].clamp(-1.0, 1.0));
+    // The net's change in grey levels, scaled up and added to the full-size composite.
+    const torch::Tensor change = ((y[0] - x[0].slice(0, 0, 3)) * 127.5)
+                                     .nan_to_num(0.0)
+                                     .to(torch::kCPU, torch::kFloat32)
+                                     .permute({1, 2, 0})
+                                     .contiguous();
+    const cv::Mat change_rgb(static_cast<int>(xh), static_cast<int>(xw), CV_32FC3, change.data_ptr());
+    cv::Mat change_bgr, change_full, out;
+    cv::cvtColor(change_rgb, change_bgr, cv::COLOR_RGB2BGR);
+    cv::resize(change_bgr, change_full, size, 0, 0, cv::INTER_LINEAR);
+    layers.frame.bgr.convertTo(out, CV_32FC3);
+    out += change_full;
+    out.convertTo(out, CV_8UC3);  // rounds and saturates to 0..255
+    return out;
   }
 };
 

@@ -43,6 +43,25 @@ cv::Mat BgrFromRgb(const torch::Tensor& rgb) {
   return bgr;
 }
 
+DetailLayers ScaledFusionLayers(const DetailLayers& layers, cv::Size size) {
+  AVATAR_CHECK_INPUT(size.width >= 1 && size.height >= 1) << "fusion input: an empty size to scale the layers to";
+  auto scaled = [&](const cv::Mat& m, const char* what) {
+    AVATAR_CHECK_INPUT(!m.empty()) << "fusion input: the " << what << " layer is missing";
+    cv::Mat out;
+    cv::resize(m, out, size, 0, 0, cv::INTER_AREA);
+    return out;
+  };
+  DetailLayers out;
+  out.frame.bgr = scaled(layers.frame.bgr, "composite");
+  out.frame.alpha = scaled(layers.frame.alpha, "opacity");
+  out.network = scaled(layers.network, "network");
+  out.face_weight = scaled(layers.face_weight, "face weight");
+  out.depth_weight = scaled(layers.depth_weight, "depth weight");
+  out.face = scaled(layers.face, "face");
+  if (!layers.eye_mouth.empty()) out.eye_mouth = scaled(layers.eye_mouth, "eye/mouth");
+  return out;
+}
+
 torch::Tensor FusionInputBytes(const DetailLayers& layers) {
   const cv::Size size = layers.frame.bgr.size();
   auto check = [&](const cv::Mat& m, const char* what) {

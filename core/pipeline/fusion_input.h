@@ -16,6 +16,12 @@ namespace avatar {
 // when a layer is missing or of another size than the frame.
 torch::Tensor FusionInputBytes(const DetailLayers& layers);
 
+// The layers the fusion net reads (FusionInputBytes), scaled to `size` by area averaging (masks
+// and weights as fractions, images as colours): the input of a frame larger than the side the
+// net was trained at. The other fields are left empty. Throws InvalidInput for an empty size or a
+// missing layer.
+DetailLayers ScaledFusionLayers(const DetailLayers& layers, cv::Size size);
+
 // A BGR8 image as uint8 [3,H,W] RGB.
 torch::Tensor RgbBytes(const cv::Mat& bgr);
 // A mask (CV_8UC1 0..255, or CV_32FC1 in [0,1]) as uint8 [1,H,W]. Throws InvalidInput.

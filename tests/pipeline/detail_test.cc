@@ -623,13 +623,31 @@ TEST_F(Detail, LayersAreTheFrameAndPackIntoTheFusionInput) {
   // Round trip of the image bytes.
   EXPECT_EQ(cv::norm(BgrFromRgb(bytes.slice(0, 0, 3)), frame.bgr, cv::NORM_INF), 0.0);
   EXPECT_EQ(cv::norm(BgrFromRgb(x[0].slice(0, 0, 3)), frame.bgr, cv::NORM_INF), 0.0);
+  // The layers of a frame larger than the net's side, scaled down as the net reads them: every
+  // channel is the area average of the full-size layer.
+  const DetailLayers small = ScaledFusionLayers(layers, cv::Size(48, 40));
+  const torch::Tensor small_bytes = FusionInputBytes(small);
+  ASSERT_EQ(small_bytes.sizes(), (std::vector<int64_t>{kFusionInputChannels, 40, 48}));
+  cv::Mat area;
+  cv::resize(frame.bgr, area, cv::Size(48, 40), 0, 0, cv::INTER_AREA);
+  EXPECT_TRUE(torch::equal(small_bytes.slice(0, 0, 3), RgbBytes(area)));
+  cv::resize(layers.face_weight, area, cv::Size(48, 40), 0, 0, cv::INTER_AREA);
+  EXPECT_TRUE(torch::equal(small_bytes.slice(0, 6, 7), MaskBytes(area)));
+  cv::resize(frame.alpha, area, cv::Size(48, 40), 0, 0, cv::INTER_AREA);
+  EXPECT_TRUE(torch::equal(small_bytes.slice(0, 10, 11), MaskBytes(area)));
+  EXPECT_GT((small_bytes[8] > 0).sum().item<int64_t>(), 500 / 4);  // the face is still there
+  EXPECT_THROW(ScaledFusionLayers(layers, cv::Size(0, 40)), InvalidInput);
+  DetailLayers missing = layers;
+  missing.network = cv::Mat();
+  EXPECT_THROW(ScaledFusionLayers(missing, cv::Size(48, 40)), InvalidInput);
 }
 
 // A detail source with a fusion net: the frame is the net's output on the frame's own layers;
 // above kFusionNetSide the net runs on the layers scaled down to it and its change, scaled up, is
 // added to the full-size composite. An untrained net (residual head at zero) leaves every size
-// exactly the composite; a net whose change is a constant +0.2 (25.5 grey levels) everywhere
-// gives the composite plus that constant at 96 px and at 320 px (the scaled path).
+// exactly the composite; a net whose change is a constant per channel (red +0.2 = 25.5 grey
+// levels, green 0, blue -0.2) gives the composite plus that change at 96 px and at 320 px (the
+// scaled path).
 TEST_F(Detail, TheFusionNetFinishesTheFrameAndLargeFramesGetItsChangeScaledUp) {
   testing::TempDir dir;
   torch::manual_seed(3);
@@ -646,7 +664,10 @@ TEST_F(Detail, TheFusionNetFinishesTheFrameAndLargeFramesGetItsChangeScaledUp) {
     for (auto& p : shift->named_parameters()) {
       if (p.key() == "head.weight") p.value().zero_();
       if (p.key() == "head.bias") {
-        p.value().slice(0, 0, 3).fill_(std::atanh(0.1));  // 2 tanh = 0.2
+        // 2 tanh: red +0.2, green 0, blue -0.2 (the net's channels are RGB)
+        p.value()[0].fill_(std::atanh(0.1));
+        p.value()[1].fill_(0.0);
+        p.value()[2].fill_(std::atanh(-0.1));
         p.value().slice(0, 3, 4).fill_(30.0);             // the blend mask at 1
       }
     }
@@ -672,7 +693,7 @@ TEST_F(Detail, TheFusionNetFinishesTheFrameAndLargeFramesGetItsChangeScaledUp) {
     EXPECT_EQ(cv::norm(up.alpha, composite.alpha, cv::NORM_INF), 0.0) << side;
     cv::Mat expected;
     composite.bgr.convertTo(expected, CV_32FC3);
-    expected = cv::min(expected + cv::Scalar::all(25.5), 255.0);
+    expected = cv::max(cv::min(expected + cv::Scalar(-25.5, 0.0, 25.5), 255.0), 0.0);  // BGR
     cv::Mat got;
     up.bgr.convertTo(got, CV_32FC3);
     EXPECT_LE(cv::norm(got, expected, cv::NORM_INF), 1.0) << side;
