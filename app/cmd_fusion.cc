@@ -126,6 +126,8 @@ struct FusionExportCommandOptions {
       "The share (0..1) of the view's turn that opens the warped photo to the net (negative = as stored)");
     v("keep_eye_mouth", exported.keep_eye_mouth,
       "Keep the composite on the target's eyes and mouth (the opened mouth's painted interior)");
+    v("keep_face", exported.keep_face,
+      "Keep the composite on the whole face mesh (the photo and the fitted texture; eyes and mouth included)");
     v("float32", float32, "Write float32 weights (default: float16, the shipped form)");
   }
 };
@@ -133,7 +135,7 @@ struct FusionExportCommandOptions {
 int FusionExport(const std::vector<std::string>& args) {
   FusionWithCommon<FusionExportCommandOptions> o;
   std::vector<std::string> positionals;
-  if (!ParseCommand(o, args, "avatar-studio fusion export --weights FUSION.ckpt --out FILE.ckpt [--turn-open S] [--keep-eye-mouth]",
+  if (!ParseCommand(o, args, "avatar-studio fusion export --weights FUSION.ckpt --out FILE.ckpt [--turn-open S] [--keep-eye-mouth] [--keep-face]",
                     "Writes trained fusion weights in the form that ships (float16), with their inference\n"
                     "settings changed where asked; the weights themselves stay as trained.",
                     &positionals)) {
@@ -146,6 +148,7 @@ int FusionExport(const std::vector<std::string>& args) {
   const FusionNetInfo info = ExportFusionNet(o.options.weights, o.options.out, o.options.exported);
   std::cout << "fusion weights " << o.options.out << ": step " << info.step << ", fusion:" << info.fingerprint
             << ", turn_open " << info.options.turn_open << (info.options.keep_eye_mouth ? ", eyes and mouth kept" : "")
+            << (info.options.keep_face ? ", face kept" : "")
             << (o.options.float32 ? ", float32" : ", float16") << "\n";
   return kExitOk;
 }

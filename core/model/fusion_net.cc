@@ -57,6 +57,8 @@ void FusionNetOptions::Validate() const {
       << "turn_open (--turn-open) scales what the turn opens: it needs the turn input (--turn)";
   AVATAR_CHECK_OPTION(!keep_eye_mouth || in_channels >= 10)
       << "keep_eye_mouth needs the eye/mouth region in input channel 9, got " << in_channels << " channels";
+  AVATAR_CHECK_OPTION(!keep_face || in_channels >= 9)
+      << "keep_face needs the face mesh's coverage in input channel 8, got " << in_channels << " channels";
   AVATAR_CHECK_OPTION(!gate_by_opacity || in_channels >= 11)
       << "gate_by_opacity needs the opacity in input channel 10, got " << in_channels << " channels";
 }
@@ -132,6 +134,7 @@ torch::Tensor FusionNetImpl::OpenTo(const torch::Tensor& x, const torch::Tensor&
   }
   if (options_.gate_by_opacity) open = open * x.slice(1, 10, 11).clamp(0.0, 1.0);
   if (options_.keep_eye_mouth) open = open * (1.0 - x.slice(1, 9, 10).clamp(0.0, 1.0));
+  if (options_.keep_face) open = open * (1.0 - x.slice(1, 8, 9).clamp(0.0, 1.0));
   return open;
 }
 
@@ -182,6 +185,7 @@ void SaveFusionNet(const std::filesystem::path& path, const FusionNet& net, cons
                   {"turn_keeps_face", net->options().turn_keeps_face},
                   {"turn_open", net->options().turn_open},
                   {"keep_eye_mouth", net->options().keep_eye_mouth},
+                  {"keep_face", net->options().keep_face},
                   {"gate_by_opacity", net->options().gate_by_opacity},
                   {"dtype", half_precision ? "float16" : "float32"}};
   torch::NoGradGuard no_grad;
@@ -207,6 +211,7 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info) 
         archive.meta.contains("turn_keeps_face") && archive.meta.at("turn_keeps_face").get<bool>();
     options.turn_open = archive.meta.contains("turn_open") ? archive.meta.at("turn_open").get<double>() : 1.0;
     options.keep_eye_mouth = archive.meta.contains("keep_eye_mouth") && archive.meta.at("keep_eye_mouth").get<bool>();
+    options.keep_face = archive.meta.contains("keep_face") && archive.meta.at("keep_face").get<bool>();
     options.gate_by_opacity =
         archive.meta.contains("gate_by_opacity") && archive.meta.at("gate_by_opacity").get<bool>();
     options.Validate();
@@ -245,6 +250,7 @@ FusionNetInfo ExportFusionNet(const std::filesystem::path& from, const std::file
   FusionNetOptions net_options = info.options;
   if (options.turn_open >= 0.0) net_options.turn_open = options.turn_open;
   if (options.keep_eye_mouth) net_options.keep_eye_mouth = true;
+  if (options.keep_face) net_options.keep_face = true;
   try {
     net_options.Validate();
   } catch (const InvalidOptions& e) {

@@ -87,6 +87,14 @@ struct FusionNetOptions {
   // dark), which lowered the orbit's mouth-opening measure (0.081 against the composite's 0.089).
   // An inference setting that `fusion export --keep-eye-mouth` turns on; off in older files.
   bool keep_eye_mouth = false;
+  // The residual does not act on the face mesh's coverage (input channel 8, in proportion): the
+  // whole face is the composite's (the photo where it saw the face, the fitted texture where not).
+  // Once the photo's outline was cleaned of its background (compose::RefineEdgeMatte) the near
+  // jaw of a turned head is the fitted texture, where the shipped net painted a haze that lowered
+  // the orbit identity at +30 degrees (0.746 -> 0.722), for no gain on the real turned frames
+  // (docs/PERFORMANCE.md "The photo's outline"). Includes the eyes and mouth (keep_eye_mouth). An
+  // inference setting that `fusion export --keep-face` turns on; off in older files.
+  bool keep_face = false;
   // The residual acts only on the frame's opaque pixels, in proportion to the opacity (input
   // channel 10): where the composite is transparent its colour is the empty background, which the
   // net has no business changing (fusion-8 lost 2.3 dB on the photo's own view there and at the
@@ -95,7 +103,7 @@ struct FusionNetOptions {
   // Throws InvalidOptions (fewer than two levels, a width outside 1..1024, no input channels,
   // keep_warped without the two warp-weight channels, turn without keep_warped, turn_keeps_face
   // without turn, turn_open outside [0,1] or other than 1 without turn, keep_eye_mouth without
-  // input channel 9).
+  // input channel 9, keep_face without input channel 8).
   void Validate() const;
 };
 
@@ -157,6 +165,7 @@ FusionNet LoadFusionNet(const std::filesystem::path& path, FusionNetInfo* info =
 struct FusionExportOptions {
   double turn_open = -1.0;     // FusionNetOptions::turn_open (< 0 = as stored)
   bool keep_eye_mouth = false;  // turn FusionNetOptions::keep_eye_mouth on (false = as stored)
+  bool keep_face = false;       // turn FusionNetOptions::keep_face on (false = as stored)
   bool half_precision = true;  // float16 weights (the shipped form)
   // Throws InvalidOptions for a turn_open above 1 or not finite.
   void Validate() const;

@@ -24,6 +24,8 @@ cv::Vec3f PhotoColour(const cv::Mat& bgr64, double x, double y) {
 void TextureOptions::Validate() const {
   AVATAR_CHECK_OPTION(size >= 0 && size <= 4096) << "--texture-size must be in 0..4096, got " << size;
   AVATAR_CHECK_OPTION(std::isfinite(depth_tolerance) && depth_tolerance > 0) << "--depth-tolerance must be > 0";
+  AVATAR_CHECK_OPTION(std::isfinite(min_matte) && min_matte >= 0.0f && min_matte <= 1.0f)
+      << "the texture's matte threshold must be in [0, 1], got " << min_matte;
 }
 
 Texture UniformTexture(const cv::Vec3f& bgr) {
@@ -33,12 +35,14 @@ Texture UniformTexture(const cv::Vec3f& bgr) {
 }
 
 Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const cv::Mat& bgr,
-                      const TextureOptions& options) {
+                      const TextureOptions& options, const cv::Mat& matte) {
   options.Validate();
   AVATAR_CHECK_INPUT(!bgr.empty() && bgr.type() == CV_8UC3) << "texture: the source image must be 8-bit BGR";
   AVATAR_CHECK_INPUT(bgr.size() == fit.image_size)
       << "texture: the image is " << bgr.cols << "x" << bgr.rows << " but the fit refers to " << fit.image_size.width
       << "x" << fit.image_size.height;
+  AVATAR_CHECK_INPUT(matte.empty() || (matte.type() == CV_32FC1 && matte.size() == bgr.size()))
+      << "texture: the matte must be CV_32FC1 of the image's size";
   const PinholeCamera cam = PinholeCamera::FromLabel(fit.camera);
   const std::vector<cv::Point3f> world = WorldVertices(model, fit);
   const auto& topo = model.topology();
@@ -58,6 +62,7 @@ Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const c
     *px = cam.ToPixel(p, bgr.size());
     const int x = static_cast<int>(std::floor(px->x)), y = static_cast<int>(std::floor(px->y));
     if (x < 0 || y < 0 || x >= bgr.cols || y >= bgr.rows) return false;
+    if (!matte.empty() && !(matte.at<float>(y, x) >= options.min_matte)) return false;
     return p[2] <= source.depth.at<float>(y, x) + tol;
   };
   Texture tex;

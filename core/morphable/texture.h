@@ -40,19 +40,24 @@ struct TextureOptions {
   int size = 256;
   // Depth tolerance of the visibility test, as a fraction of the camera distance.
   double depth_tolerance = 0.01;
+  // With a person matte: a point whose photo pixel's matte is below this was not seen (it takes
+  // its mirrored texel or the inpainting like any hidden point).
+  float min_matte = 0.5f;
 
   template <typename V>
   void Visit(V&& v) {
     v("size", size, "Side of the UV texture in texels (0: vertex colours only)");
     v("depth_tolerance", depth_tolerance, "Visibility depth tolerance (fraction of the camera distance)");
+    v("min_matte", min_matte, "With a matte: value below which a photo pixel is background (not sampled)");
   }
   void Validate() const;
 };
 
-// Samples the texture of `fit` from `bgr` (CV_8UC3, the image the fit refers to). Throws
-// InvalidInput when the image size differs from fit.image_size or the image is empty.
+// Samples the texture of `fit` from `bgr` (CV_8UC3, the image the fit refers to); with `matte`
+// (CV_32FC1 in [0,1] of the image's size) only from the person. Throws InvalidInput when the
+// image size differs from fit.image_size, the image is empty or the matte is not of its size.
 Texture SampleTexture(const MorphableModel& model, const FitResult& fit, const cv::Mat& bgr,
-                      const TextureOptions& options = {});
+                      const TextureOptions& options = {}, const cv::Mat& matte = {});
 
 // A uniform grey texture (for geometry-only renders).
 Texture UniformTexture(const cv::Vec3f& bgr = {0.7f, 0.7f, 0.7f});

@@ -19,6 +19,15 @@
 namespace avatar {
 namespace {
 
+// The photo and matte the warps read: the portrait's, with the person's edge cleaned unless
+// the options say not to.
+compose::EdgeMatte PhotoOf(const SourceAnalysis& analysis, const DetailOptions& options) {
+  options.Validate();
+  if (!options.clean_edges || analysis.portrait.matte.empty())
+    return {analysis.portrait.image_unmatted, analysis.portrait.matte};
+  return compose::RefineEdgeMatte(analysis.portrait.image_unmatted, analysis.portrait.matte, options.edges);
+}
+
 const morphable::MorphableModel& ModelOf(const SourceAnalysis& analysis) {
   AVATAR_CHECK_INPUT(analysis.model != nullptr) << "detail: the analysis has no morphable model";
   return *analysis.model;
@@ -95,6 +104,7 @@ void DetailOptions::Validate() const {
                                                         << "'";
   face.Validate();
   depth.Validate();
+  edges.Validate();
   AVATAR_CHECK_OPTION(source_depth_size >= 16 && source_depth_size <= 1024)
       << "the source depth size must be within 16..1024, got " << source_depth_size;
   AVATAR_CHECK_OPTION(base_expression_every >= 1 && base_expression_every <= 100)
@@ -112,7 +122,8 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     : base_(std::move(base)),
       analysis_(std::make_shared<const SourceAnalysis>(analysis)),
       model_(analysis.model),
-      detail_(ModelOf(analysis), analysis.morphable_fit, analysis.portrait.image_unmatted, analysis.portrait.matte,
+      photo_(PhotoOf(analysis, options)),
+      detail_(ModelOf(analysis), analysis.morphable_fit, photo_.bgr, photo_.matte,
               analysis.portrait.eye_mouth_mask, options.face, analysis.portrait.landmarks.points),
       options_(options),
       kept_(std::make_shared<Kept>()) {
@@ -142,8 +153,7 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
         }
         AVATAR_LOG(kDebug) << "detail: the network's depth moves by " << depth_offset_ << " onto the face mesh";
       }
-      depth_ = std::make_unique<compose::DepthDetail>(analysis.portrait.image_unmatted, analysis.portrait.matte,
-                                                      std::move(depth), options_.depth);
+      depth_ = std::make_unique<compose::DepthDetail>(photo_.bgr, photo_.matte, std::move(depth), options_.depth);
     } catch (const InvalidInput& e) {
       warnings.push_back(std::string("The photo's detail covers the face only: ") + e.what() + ".");
       AVATAR_LOG(kWarning) << warnings.back();
@@ -153,7 +163,14 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     fusion_ = std::make_shared<Fusion>();
     fusion_->net = LoadFusionNet(options_.fusion, &fusion_->info);
   }
-  if (options_.face_fill) detail_.SetFillTexture(analysis.texture);
+  if (options_.face_fill) {
+    // The fit's texture sampled again from the cleaned photo, only from the person, when the edge
+    // was cleaned (the analysis's texture, which the morphable preview shows, reads the photo
+    // as it is).
+    detail_.SetFillTexture(photo_.matte.data == analysis.portrait.matte.data
+                               ? analysis.texture
+                               : morphable::SampleTexture(*model_, analysis.morphable_fit, photo_.bgr, {}, photo_.matte));
+  }
   SetWarnings(std::move(warnings));
 }
 

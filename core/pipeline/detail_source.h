@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/compose/depth_detail.h"
+#include "core/compose/edge_matte.h"
 #include "core/compose/face_detail.h"
 #include "core/pipeline/detail_layers.h"
 #include "core/pipeline/frame_source.h"
@@ -35,6 +36,10 @@ struct DetailOptions {
   // face's texture (the morphable preview's, which is filled where the photo did not see) instead
   // of the base frame.
   bool face_fill = true;
+  // The photo's person edge cleaned of the background colour (compose::RefineEdgeMatte) before
+  // either warp or the fill texture reads it.
+  bool clean_edges = true;
+  compose::EdgeMatteOptions edges;
   // Size of the base render whose depth is the source view's proxy (once per source).
   int source_depth_size = 128;
   // The network's depth is moved along the rays by its median gap to the fitted face mesh at the
@@ -142,6 +147,7 @@ class DetailFrameSource : public FrameSource {
   std::shared_ptr<const FrameSource> base_;
   std::shared_ptr<const SourceAnalysis> analysis_;  // the portrait's (ViewportMesh)
   const morphable::MorphableModel* model_;
+  compose::EdgeMatte photo_;  // the photo and matte both warps read (clean_edges)
   compose::FaceDetail detail_;
   DetailOptions options_;
   std::unique_ptr<compose::DepthDetail> depth_;

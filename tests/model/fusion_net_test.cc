@@ -204,6 +204,25 @@ TEST(FusionNet, TheTurnOpensTheWarpedPhotoInProportion) {
   mouth_few.turn_open = 1.0;
   mouth_few.gate_by_opacity = false;
   EXPECT_THROW(mouth_few.Validate(), InvalidOptions);
+  // keep_face: no residual on the face mesh's coverage (channel 8), half of it at 0.5.
+  FusionNetOptions whole_face_options = share_options;
+  whole_face_options.keep_face = true;
+  FusionNet whole_face(whole_face_options);
+  CopyFusionWeights(net, whole_face);
+  torch::Tensor xw = xs.clone();
+  xw.slice(1, 8, 9).zero_();
+  xw.slice(1, 8, 9).slice(3, 12, 14).fill_(1.0);  // columns 12-13 (unwarped): the face
+  xw.slice(1, 8, 9).slice(3, 14, 16).fill_(0.5);  // columns 14-15: half
+  const torch::Tensor yw = whole_face->forward(xw, turn), ysw = shared->forward(xw, turn), cw = xw.slice(1, 0, 3);
+  EXPECT_TRUE(torch::equal(yw.slice(3, 12, 14), cw.slice(3, 12, 14)));
+  EXPECT_TRUE(torch::allclose(yw.slice(3, 14, 16), (cw + 0.5 * (ysw - cw)).slice(3, 14, 16), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(yw.slice(3, 0, 12), ysw.slice(3, 0, 12), 1e-5, 1e-6));
+  EXPECT_FALSE(torch::equal(ysw.slice(3, 12, 14), cw.slice(3, 12, 14)));  // without it the net acts there
+  FusionNetOptions face_few = mouth_few;
+  face_few.keep_eye_mouth = false;
+  face_few.in_channels = 8;
+  face_few.keep_face = true;
+  EXPECT_THROW(face_few.Validate(), InvalidOptions);
   FusionNetOptions share_without_turn = share_options;
   share_without_turn.turn = false;
   share_without_turn.turn_keeps_face = false;
@@ -413,6 +432,13 @@ TEST(FusionNet, WeightsFilesRoundTrip) {
     EXPECT_TRUE(mouth_kept.options.keep_eye_mouth);
     EXPECT_EQ(mouth_kept.options.turn_open, 0.125);  // the rest as stored
     EXPECT_TRUE(ExportFusionNet(dir / "mouth.ckpt", dir / "again.ckpt", as_stored).options.keep_eye_mouth);
+    EXPECT_FALSE(mouth_kept.options.keep_face);
+    FusionExportOptions face;
+    face.keep_face = true;
+    const FusionNetInfo face_kept = ExportFusionNet(dir / "mouth.ckpt", dir / "face.ckpt", face);
+    EXPECT_TRUE(face_kept.options.keep_face && face_kept.options.keep_eye_mouth);
+    EXPECT_EQ(face_kept.options.turn_open, 0.125);
+    EXPECT_TRUE(LoadFusionNet(dir / "face.ckpt")->options().keep_face);
     try {
       ExportFusionNet(dir / "open.ckpt", dir / "never.ckpt", share);
       ADD_FAILURE() << "a net without the turn input took turn_open";

@@ -17,6 +17,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/compose/depth_detail.h"
+#include "core/compose/edge_matte.h"
 #include "core/compose/face_detail.h"
 #include "core/compose/upscaler.h"
 #include "core/face/face_geometry.h"
@@ -431,9 +432,12 @@ TEST_F(Detail, FillGapsKeepsKnownValuesAndFillsEveryGapBetweenThem) {
 // opaque pixels do. Turned by 30 degrees the extended head stays finite and in range.
 TEST_F(Detail, DepthWarpCoversThePersonBeyondTheBasesSilhouette) {
   const cv::Size size(192, 192);
+  // The photo and matte the warps read: the portrait's with the outline cleaned (the default).
+  const compose::EdgeMatte cleaned =
+      compose::RefineEdgeMatte(analysis_->portrait.image_unmatted, analysis_->portrait.matte);
   cv::Mat matte, photo;
-  cv::resize(analysis_->portrait.matte, matte, size, 0, 0, cv::INTER_AREA);
-  cv::resize(analysis_->portrait.image_unmatted, photo, size, 0, 0, cv::INTER_AREA);
+  cv::resize(cleaned.matte, matte, size, 0, 0, cv::INTER_AREA);
+  cv::resize(cleaned.bgr, photo, size, 0, 0, cv::INTER_AREA);
   const cv::Mat person = matte >= 0.5f;
   RunContext ctx;
   for (const bool extend : {false, true}) {
@@ -1157,8 +1161,9 @@ TEST_F(Detail, ViewportMeshesHoldThePhotosPartsThenTheNetworksAndFollowTheExpres
 TEST_F(Detail, TheNetworksFogOutsideThePersonIsCarved) {
   const cv::Size size(160, 160);
   const auto fog = std::make_shared<SphereSource>(Base()->SourcePose(), analysis_->morphable_fit.camera, 1.2);
-  cv::Mat matte;
-  cv::resize(analysis_->portrait.matte, matte, size, 0, 0, cv::INTER_AREA);
+  cv::Mat matte;  // the matte the warps read: the portrait's with the outline cleaned (the default)
+  cv::resize(compose::RefineEdgeMatte(analysis_->portrait.image_unmatted, analysis_->portrait.matte).matte, matte, size,
+             0, 0, cv::INTER_AREA);
   // A pixel of slack on either side: the test's matte is resampled.
   cv::Mat person = matte >= 0.5f, background = matte < 0.25f;
   cv::erode(person, person, cv::Mat::ones(3, 3, CV_8UC1));
@@ -1352,6 +1357,98 @@ TEST_F(Detail, TheNetworksDepthIsMovedOntoTheFaceMesh) {
 // a smooth picture (its colours and layout: close to bicubic, within a few grey levels) while
 // adding its own sharpening; any output size; clear errors for a bad name, a missing model and
 // a bad image. (The network itself is checked against TensorFlow.js in model/mobilenet_v2.)
+// A disc of person colour F on a background B, its edge a 4 px ramp of coverage, and a
+// segmentation matte 4 px too wide (as the photo's matte is on a blue background): the cleaned
+// matte follows the true coverage, never exceeds the segmentation's, and the edge's colour is
+// F; the inside is untouched, and a background of the person's colour changes nothing.
+TEST(EdgeMatte, TheBackgroundShareOfTheOutlineIsTakenOut) {
+  const cv::Size size(160, 160);
+  const cv::Vec3f f(60.0f, 90.0f, 200.0f), b(240.0f, 125.0f, 55.0f);
+  const double radius = 50.0;
+  cv::Mat photo(size, CV_8UC3), matte(size, CV_32FC1), coverage(size, CV_32FC1);
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const double r = std::hypot(x + 0.5 - 80.0, y + 0.5 - 80.0);
+      const float a = static_cast<float>(std::clamp((radius + 2.0 - r) / 4.0, 0.0, 1.0));
+      coverage.at<float>(y, x) = a;
+      matte.at<float>(y, x) = static_cast<float>(std::clamp((radius + 6.0 - r) / 4.0, 0.0, 1.0));
+      const cv::Vec3f c = a * f + (1.0f - a) * b;
+      photo.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uchar>(c[0]), cv::saturate_cast<uchar>(c[1]),
+                                            cv::saturate_cast<uchar>(c[2]));
+    }
+  }
+  // A lone pixel of the background's colour inside the person, within the band: a bluish
+  // highlight, not a hole.
+  photo.at<cv::Vec3b>(80, 80 + static_cast<int>(radius) - 8) = cv::Vec3b(240, 125, 55);
+  compose::EdgeMatteOptions o;
+  o.band = 0.1;  // 16 px: the person's and background's colours from farther than the ramps
+  const compose::EdgeMatte out = compose::RefineEdgeMatte(photo, matte, o);
+  ASSERT_EQ(out.bgr.size(), size);
+  ASSERT_EQ(out.matte.type(), CV_32FC1);
+  EXPECT_TRUE(cv::checkRange(out.matte, true, nullptr, 0.0, 1.0 + 1e-6));
+  EXPECT_EQ(cv::countNonZero(out.matte > matte + 1e-6f), 0);  // never above the segmentation's
+  double worst_matte = 0.0, worst_colour = 0.0, before = 0.0;
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const double r = std::hypot(x + 0.5 - 80.0, y + 0.5 - 80.0);
+      const bool lone = y == 80 && x == 80 + static_cast<int>(radius) - 8;
+      if (r < radius - 20.0 || lone) {  // inside: as it was
+        ASSERT_EQ(out.bgr.at<cv::Vec3b>(y, x), photo.at<cv::Vec3b>(y, x));
+        ASSERT_EQ(out.matte.at<float>(y, x), matte.at<float>(y, x));
+      }
+      if (lone) continue;
+      worst_matte = std::max(worst_matte, std::abs(out.matte.at<float>(y, x) - coverage.at<float>(y, x)) * 1.0);
+      if (out.matte.at<float>(y, x) >= 0.5f) {
+        const cv::Vec3b c = out.bgr.at<cv::Vec3b>(y, x);
+        worst_colour = std::max(worst_colour, cv::norm(cv::Vec3f(c[0], c[1], c[2]) - f));
+      }
+      if (matte.at<float>(y, x) >= 0.5f) {
+        const cv::Vec3b p = photo.at<cv::Vec3b>(y, x);
+        before = std::max(before, cv::norm(cv::Vec3f(p[0], p[1], p[2]) - f));
+      }
+    }
+  }
+  std::cout << "edge matte: worst matte error " << worst_matte << ", worst colour error of the kept edge "
+            << worst_colour << " levels (the photo's: " << before << ")\n";
+  EXPECT_LT(worst_matte, 0.05);
+  EXPECT_LT(worst_colour, 6.0);
+  EXPECT_GT(before, 100.0);
+  // A background of the person's colour: nothing to tell apart, nothing changes.
+  const compose::EdgeMatte same = compose::RefineEdgeMatte(cv::Mat(size, CV_8UC3, cv::Scalar(60, 90, 200)), matte, o);
+  EXPECT_EQ(cv::norm(same.matte, matte, cv::NORM_INF), 0.0);
+  // No person, or no background: as it was.
+  const cv::Mat ones(size, CV_32FC1, cv::Scalar(1.0f)), zeros(size, CV_32FC1, cv::Scalar(0.0f));
+  EXPECT_EQ(cv::norm(compose::RefineEdgeMatte(photo, ones, o).matte, ones, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(compose::RefineEdgeMatte(photo, zeros, o).bgr, photo, cv::NORM_INF), 0.0);
+  EXPECT_THROW(compose::RefineEdgeMatte(cv::Mat(), matte, o), InvalidInput);
+  EXPECT_THROW(compose::RefineEdgeMatte(photo, cv::Mat(size, CV_8UC1, cv::Scalar(0)), o), InvalidInput);
+  EXPECT_THROW(compose::RefineEdgeMatte(photo, cv::Mat(cv::Size(8, 8), CV_32FC1, cv::Scalar(1.0f)), o), InvalidInput);
+  compose::EdgeMatteOptions bad;
+  bad.band = 0.0;
+  EXPECT_THROW(compose::RefineEdgeMatte(photo, matte, bad), InvalidOptions);
+  bad = {};
+  bad.min_solve = 0.0f;
+  EXPECT_THROW(bad.Validate(), InvalidOptions);
+}
+
+// The fit's texture read only from the person when a matte is given: with the matte at zero
+// nothing is seen (every texel inpainted), with the matte at one it is the texture without one.
+TEST_F(Detail, TheTextureIsSampledOnlyFromThePerson) {
+  const cv::Mat& photo = analysis_->portrait.image_unmatted;
+  const morphable::Texture plain = morphable::SampleTexture(*analysis_->model, analysis_->morphable_fit, photo);
+  const morphable::Texture all = morphable::SampleTexture(*analysis_->model, analysis_->morphable_fit, photo, {},
+                                                           cv::Mat(photo.size(), CV_32FC1, cv::Scalar(1.0f)));
+  const morphable::Texture none = morphable::SampleTexture(*analysis_->model, analysis_->morphable_fit, photo, {},
+                                                            cv::Mat(photo.size(), CV_32FC1, cv::Scalar(0.0f)));
+  EXPECT_GT(cv::countNonZero(plain.uv_visible), 1000);
+  EXPECT_EQ(cv::norm(all.uv_image, plain.uv_image, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::countNonZero(none.uv_visible), 0);
+  EXPECT_TRUE(cv::checkRange(none.uv_image));
+  EXPECT_THROW(morphable::SampleTexture(*analysis_->model, analysis_->morphable_fit, photo, {},
+                                        cv::Mat(cv::Size(8, 8), CV_32FC1, cv::Scalar(1.0f))),
+               InvalidInput);
+}
+
 TEST(Upscaler, KeepsThePictureAndRefusesBadInput) {
   cv::Mat img(40, 48, CV_8UC3);
   for (int y = 0; y < img.rows; ++y)
