@@ -15,6 +15,8 @@ void EdgeMatteOptions::Validate() const {
       << "the edge band must be in (0, 0.25] of the image height, got " << band;
   AVATAR_CHECK_OPTION(std::isfinite(min_contrast) && min_contrast >= 0.0)
       << "the edge's colour contrast must be a finite number >= 0, got " << min_contrast;
+  AVATAR_CHECK_OPTION(std::isfinite(max_background_spread) && max_background_spread >= 0.0)
+      << "the edge's background spread must be a finite number >= 0, got " << max_background_spread;
   AVATAR_CHECK_OPTION(std::isfinite(min_solve) && min_solve > 0.0f && min_solve <= 1.0f)
       << "the edge's smallest solved share must be in (0, 1], got " << min_solve;
 }
@@ -39,7 +41,17 @@ EdgeMatte RefineEdgeMatte(const cv::Mat& bgr, const cv::Mat& matte, const EdgeMa
   if (cv::countNonZero(known_person) == 0 || cv::countNonZero(known_background) == 0) return out;
   cv::Mat colour;
   bgr.convertTo(colour, CV_32FC3);
-  const cv::Mat f = PushPullFill(colour, known_person), b = PushPullFill(colour, known_background);
+  // The background's colour and how much it varies around each pixel: both filled over the band
+  // from the background beyond it, then averaged over half the band's width (push-pull alone
+  // keeps the finest detail next to the known pixels, e.g. the one stripe of a flag nearest to the
+  // outline). Unmixing needs a plain background (a wall, a screen); behind a busy one (a flag, a
+  // room) the local mean is no pixel's colour and the split would punch holes in the person.
+  const cv::Mat f = PushPullFill(colour, known_person);
+  cv::Mat b = PushPullFill(colour, known_background), b2 = PushPullFill(colour.mul(colour), known_background);
+  const double sigma = std::max(1.0, band / 2.0);
+  cv::GaussianBlur(b, b, cv::Size(), sigma, sigma, cv::BORDER_REPLICATE);
+  cv::GaussianBlur(b2, b2, cv::Size(), sigma, sigma, cv::BORDER_REPLICATE);
+  const float max_spread = static_cast<float>(options.max_background_spread);
   const float min_contrast2 = static_cast<float>(options.min_contrast * options.min_contrast);
   // The colour's estimate of the person's share, where the band lets it speak (1 elsewhere).
   cv::Mat share_alpha(bgr.size(), CV_32FC1, cv::Scalar(1.0f));
@@ -51,6 +63,9 @@ EdgeMatte RefineEdgeMatte(const cv::Mat& bgr, const cv::Mat& matte, const EdgeMa
         const cv::Vec3f fb = bc - fc;
         const float len2 = fb.dot(fb);
         if (!(len2 >= min_contrast2) || len2 <= 0.0f) continue;
+        const cv::Vec3f b2c = b2.at<cv::Vec3f>(y, x);
+        const float variance = std::max(0.0f, (b2c[0] - bc[0] * bc[0]) + (b2c[1] - bc[1] * bc[1]) + (b2c[2] - bc[2] * bc[2]));
+        if (!(variance <= max_spread * max_spread * len2)) continue;  // a busy background here
         share_alpha.at<float>(y, x) = 1.0f - std::clamp((c - fc).dot(fb) / len2, 0.0f, 1.0f);
       }
     }

@@ -8,8 +8,9 @@
 // outside the outline, filled over the band by push-pull): its colour c lies near the segment
 // F-B, and the share of B along it says how much of the pixel is background. The edge's matte
 // keeps the smaller of the segmentation's and this colour estimate, and its colour is the person's
-// part of c (the background share taken out). Where F and B are alike the colour cannot tell them
-// apart, and the segmentation's matte and the photo's colour stay.
+// part of c (the background share taken out). Where F and B are alike, or the background around
+// the pixel is busy (its colours spread far around B), the colour cannot tell them apart, and the
+// segmentation's matte and the photo's colour stay.
 
 #include <opencv2/core.hpp>
 
@@ -22,6 +23,11 @@ struct EdgeMatteOptions {
   double band = 0.016;
   // F and B closer than this (Euclidean, in 0..255 BGR levels) leave the pixel as it is.
   double min_contrast = 40.0;
+  // The background's local spread (the root of its colours' summed variance around B) above this
+  // fraction of |F - B| leaves the pixel as it is: unmixing needs a plain background. Grace
+  // Hopper's flag behind her cap spreads 0.5-1.5 |F - B| (holes in the cap at 0.25 without the
+  // rule), franck's blue screen under 0.1.
+  double max_background_spread = 0.25;
   // Matte below which the pixel's colour is the local person colour F itself instead of the
   // background share taken out of c (dividing by a small share amplifies noise).
   float min_solve = 0.25f;

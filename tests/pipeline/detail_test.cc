@@ -1360,7 +1360,7 @@ TEST_F(Detail, TheNetworksDepthIsMovedOntoTheFaceMesh) {
 // A disc of person colour F on a background B, its edge a 4 px ramp of coverage, and a
 // segmentation matte 4 px too wide (as the photo's matte is on a blue background): the cleaned
 // matte follows the true coverage, never exceeds the segmentation's, and the edge's colour is
-// F; the inside is untouched, and a background of the person's colour changes nothing.
+// F; the inside is untouched, and a busy background or one of the person's colour changes nothing.
 TEST(EdgeMatte, TheBackgroundShareOfTheOutlineIsTakenOut) {
   const cv::Size size(160, 160);
   const cv::Vec3f f(60.0f, 90.0f, 200.0f), b(240.0f, 125.0f, 55.0f);
@@ -1413,6 +1413,15 @@ TEST(EdgeMatte, TheBackgroundShareOfTheOutlineIsTakenOut) {
   EXPECT_LT(worst_matte, 0.05);
   EXPECT_LT(worst_colour, 6.0);
   EXPECT_GT(before, 100.0);
+  // A busy background (stripes of the background's colour and of white, 3 px each): its local
+  // mean is no pixel's colour, so the outline stays the segmentation's.
+  cv::Mat striped = photo.clone();
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x)
+      if (matte.at<float>(y, x) <= 0.0f && (y / 3) % 2 == 0) striped.at<cv::Vec3b>(y, x) = cv::Vec3b(250, 250, 250);
+  const compose::EdgeMatte busy = compose::RefineEdgeMatte(striped, matte, o);
+  EXPECT_EQ(cv::norm(busy.matte, matte, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(busy.bgr, striped, cv::NORM_INF), 0.0);
   // A background of the person's colour: nothing to tell apart, nothing changes.
   const compose::EdgeMatte same = compose::RefineEdgeMatte(cv::Mat(size, CV_8UC3, cv::Scalar(60, 90, 200)), matte, o);
   EXPECT_EQ(cv::norm(same.matte, matte, cv::NORM_INF), 0.0);
