@@ -167,9 +167,9 @@ DetailFrameSource::DetailFrameSource(std::shared_ptr<const FrameSource> base, co
     // The fit's texture sampled again from the cleaned photo, only from the person, when the edge
     // was cleaned (the analysis's texture, which the morphable preview shows, reads the photo
     // as it is).
-    detail_.SetFillTexture(photo_.matte.data == analysis.portrait.matte.data
-                               ? analysis.texture
-                               : morphable::SampleTexture(*model_, analysis.morphable_fit, photo_.bgr, {}, photo_.matte));
+    const bool cleaned = options_.clean_edges && !analysis.portrait.matte.empty();  // as PhotoOf decides
+    detail_.SetFillTexture(cleaned ? morphable::SampleTexture(*model_, analysis.morphable_fit, photo_.bgr, {}, photo_.matte)
+                                   : analysis.texture);
   }
   SetWarnings(std::move(warnings));
 }

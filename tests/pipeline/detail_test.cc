@@ -1429,6 +1429,13 @@ TEST(EdgeMatte, TheBackgroundShareOfTheOutlineIsTakenOut) {
   const cv::Mat ones(size, CV_32FC1, cv::Scalar(1.0f)), zeros(size, CV_32FC1, cv::Scalar(0.0f));
   EXPECT_EQ(cv::norm(compose::RefineEdgeMatte(photo, ones, o).matte, ones, cv::NORM_INF), 0.0);
   EXPECT_EQ(cv::norm(compose::RefineEdgeMatte(photo, zeros, o).bgr, photo, cv::NORM_INF), 0.0);
+  // A matte with NaN (a damaged file): read as background there, every output finite and in range.
+  cv::Mat holed = matte.clone();
+  holed.at<float>(80, 80 + static_cast<int>(radius)) = std::numeric_limits<float>::quiet_NaN();
+  holed.at<float>(10, 10) = std::numeric_limits<float>::quiet_NaN();
+  const compose::EdgeMatte nan = compose::RefineEdgeMatte(photo, holed, o);
+  EXPECT_TRUE(cv::checkRange(nan.matte, true, nullptr, 0.0, 1.0 + 1e-6));
+  EXPECT_EQ(nan.matte.at<float>(10, 10), 0.0f);
   EXPECT_THROW(compose::RefineEdgeMatte(cv::Mat(), matte, o), InvalidInput);
   EXPECT_THROW(compose::RefineEdgeMatte(photo, cv::Mat(size, CV_8UC1, cv::Scalar(0)), o), InvalidInput);
   EXPECT_THROW(compose::RefineEdgeMatte(photo, cv::Mat(cv::Size(8, 8), CV_32FC1, cv::Scalar(1.0f)), o), InvalidInput);
